@@ -1,0 +1,371 @@
+//! The evaluation harness: every method predicts the same targets of the same clips from the same
+//! warps, and is scored as SPEC §7 says (8-bit predictions, D- metrics on disocclusions, TC).
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
+
+use anyhow::{bail, Context, Result};
+use indicatif::{ProgressBar, ProgressStyle};
+use ivp_core::infill::{FrameView, InfillContext, Infiller};
+use ivp_core::metrics::{score_frame, tc_track_variances, FrameScores, TcSequence};
+use ivp_core::{relative_pose, warp_forward, RgbImage, Warp};
+use ivp_data::{find_clips, read_rgb, Clip, Frame};
+use serde::Serialize;
+
+/// The targets of a 12-frame clip (SPEC §5).
+pub const DEFAULT_TARGETS: [usize; 3] = [6, 8, 10];
+
+/// A method scored by the harness.
+pub enum Method {
+    /// Runs inside ivp.
+    Internal(Box<dyn Infiller>),
+    /// Frames predicted by another tool, read from `DIR/<clip name>/<t:04>.png`.
+    External { name: String, dir: PathBuf },
+}
+
+impl Method {
+    pub fn name(&self) -> &str {
+        match self {
+            Method::Internal(m) => m.name(),
+            Method::External { name, .. } => name,
+        }
+    }
+}
+
+/// The scores of one method over a dataset.
+#[derive(Clone, Debug, Serialize)]
+pub struct MethodReport {
+    #[serde(skip)]
+    pub name: String,
+    pub uses_ground_truth: bool,
+    pub mse: f64,
+    pub d_mse: Option<f64>,
+    pub ssim: f64,
+    pub d_ssim: Option<f64>,
+    /// `None` when no track survived (SPEC §7).
+    pub tc: Option<f64>,
+    pub tc_tracks: usize,
+    /// `None` for external methods: their time is not ours to measure.
+    pub ms_per_frame: Option<f64>,
+    pub ms_by_stage: BTreeMap<String, f64>,
+    pub frames: usize,
+    pub d_frames: usize,
+}
+
+#[derive(Clone, Debug, Serialize)]
+pub struct EvalReport {
+    /// Clips evaluated, relative to the dataset folder.
+    pub clips: Vec<String>,
+    pub targets: Vec<usize>,
+    #[serde(serialize_with = "serialize_methods")]
+    pub methods: Vec<MethodReport>,
+}
+
+fn serialize_methods<S: serde::Serializer>(methods: &[MethodReport], s: S) -> Result<S::Ok, S::Error> {
+    use serde::ser::SerializeMap;
+    let mut map = s.serialize_map(Some(methods.len()))?;
+    for m in methods {
+        map.serialize_entry(&m.name, m)?;
+    }
+    map.end()
+}
+
+/// Running sums of one method's scores.
+#[derive(Default)]
+struct Accumulator {
+    mse: f64,
+    ssim: f64,
+    d_mse: f64,
+    d_ssim: f64,
+    frames: usize,
+    d_frames: usize,
+    tc_variances: Vec<f64>,
+    stage_time: BTreeMap<&'static str, Duration>,
+    timed_frames: usize,
+}
+
+impl Accumulator {
+    fn add(&mut self, s: &FrameScores) {
+        self.mse += s.mse;
+        self.ssim += s.ssim;
+        self.frames += 1;
+        if let (Some(dm), Some(ds)) = (s.d_mse, s.d_ssim) {
+            self.d_mse += dm;
+            self.d_ssim += ds;
+            self.d_frames += 1;
+        }
+    }
+
+    fn report(self, name: &str, uses_ground_truth: bool, timed: bool) -> MethodReport {
+        let per = |x: f64, n: usize| if n == 0 { f64::NAN } else { x / n as f64 };
+        let per_frame_ms = |d: Duration| d.as_secs_f64() * 1e3 / self.timed_frames.max(1) as f64;
+        let ms_by_stage: BTreeMap<String, f64> =
+            self.stage_time.iter().map(|(k, d)| (k.to_string(), per_frame_ms(*d))).collect();
+        let tc_tracks = self.tc_variances.len();
+        MethodReport {
+            name: name.to_string(),
+            uses_ground_truth,
+            mse: per(self.mse, self.frames),
+            d_mse: (self.d_frames > 0).then(|| per(self.d_mse, self.d_frames)),
+            ssim: per(self.ssim, self.frames),
+            d_ssim: (self.d_frames > 0).then(|| per(self.d_ssim, self.d_frames)),
+            tc: (tc_tracks > 0).then(|| self.tc_variances.iter().sum::<f64>() / tc_tracks as f64),
+            tc_tracks,
+            ms_per_frame: timed.then(|| ms_by_stage.values().sum()),
+            ms_by_stage: if timed { ms_by_stage } else { BTreeMap::new() },
+            frames: self.frames,
+            d_frames: self.d_frames,
+        }
+    }
+}
+
+/// The name of a clip in reports and in external folders: its path relative to the dataset, or
+/// its own folder name when the dataset is the clip.
+pub fn clip_name(data: &Path, clip: &Path) -> String {
+    match clip.strip_prefix(data) {
+        Ok(rel) if !rel.as_os_str().is_empty() => rel.to_string_lossy().replace('\\', "/"),
+        _ => clip.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_else(|| "clip".into()),
+    }
+}
+
+/// Warps frame `t - 1` into view `t`: the warp every method of every target starts from.
+pub fn warp_to_target(clip: &Clip, last: &Frame, t: usize) -> Warp {
+    let transform = relative_pose(clip.pose(t - 1), clip.pose(t));
+    warp_forward(&last.image, &last.depth, clip.intrinsics(), &transform)
+}
+
+/// Checks that `targets` can be predicted in a clip of `len` frames: each needs `t - 3 .. t`.
+pub fn check_targets(clip: &Clip, targets: &[usize]) -> Result<()> {
+    for &t in targets {
+        if t < 3 || t >= clip.len() {
+            bail!(
+                "{}: target {t} needs frames {}..={t}, but the clip has frames 0..={}",
+                clip.path().display(),
+                t.saturating_sub(3),
+                clip.len().saturating_sub(1)
+            );
+        }
+    }
+    Ok(())
+}
+
+/// True when the targets are every other frame (`t, t+2, t+4, ...`), the pattern TC is defined on.
+fn tc_applies(targets: &[usize], clip_len: usize) -> bool {
+    !targets.is_empty()
+        && targets.windows(2).all(|w| w[1] == w[0] + 2)
+        && targets[0] >= 1
+        && targets[targets.len() - 1] + 1 < clip_len
+}
+
+/// Scores every method on every target of every clip under `data`.
+pub fn evaluate(data: &Path, targets: &[usize], methods: &[Method], progress: bool) -> Result<EvalReport> {
+    if methods.is_empty() {
+        bail!("no method to evaluate");
+    }
+    let clip_dirs = find_clips(data)?;
+    let clips: Vec<Clip> = clip_dirs.iter().map(Clip::open).collect::<Result<_, _>>()?;
+    for clip in &clips {
+        check_targets(clip, targets)?;
+    }
+    let mut sorted_targets = targets.to_vec();
+    sorted_targets.sort_unstable();
+    sorted_targets.dedup();
+
+    let bar = progress_bar(progress, (clips.len() * sorted_targets.len()) as u64, "evaluating");
+    let mut acc: Vec<Accumulator> = methods.iter().map(|_| Accumulator::default()).collect();
+    let mut names = Vec::new();
+    for clip in &clips {
+        let name = clip_name(data, clip.path());
+        bar.set_message(name.clone());
+        evaluate_clip(clip, &name, &sorted_targets, methods, &mut acc, &bar)?;
+        names.push(name);
+    }
+    bar.finish_and_clear();
+
+    let reports = methods
+        .iter()
+        .zip(acc)
+        .map(|(m, a)| match m {
+            Method::Internal(inf) => a.report(inf.name(), inf.uses_ground_truth(), true),
+            Method::External { name, .. } => a.report(name, false, false),
+        })
+        .collect();
+    Ok(EvalReport { clips: names, targets: sorted_targets, methods: reports })
+}
+
+pub fn progress_bar(enabled: bool, len: u64, what: &str) -> ProgressBar {
+    if !enabled {
+        return ProgressBar::hidden();
+    }
+    let bar = ProgressBar::new(len);
+    bar.set_style(
+        ProgressStyle::with_template(&format!("{what} {{bar:30}} {{pos}}/{{len}} {{msg}} [{{elapsed}} < {{eta}}]"))
+            .expect("valid template"),
+    );
+    bar
+}
+
+/// What one target of one clip leaves for TC.
+struct TargetOutcome {
+    warp: Warp,
+    predictions: Vec<RgbImage>,
+}
+
+fn evaluate_clip(
+    clip: &Clip,
+    name: &str,
+    targets: &[usize],
+    methods: &[Method],
+    acc: &mut [Accumulator],
+    bar: &ProgressBar,
+) -> Result<()> {
+    let first = targets[0] - 3;
+    let last = (targets[targets.len() - 1] + 1).min(clip.len() - 1);
+    let frames: BTreeMap<usize, Frame> =
+        (first..=last).map(|i| Ok((i, clip.load_frame(i)?))).collect::<Result<_, ivp_data::DataError>>()?;
+
+    let mut outcomes = BTreeMap::new();
+    for &t in targets {
+        let (before_last, last_frame, truth) = (&frames[&(t - 3)], &frames[&(t - 1)], &frames[&t]);
+        let started = Instant::now();
+        let warp = warp_to_target(clip, last_frame, t);
+        let warp_time = started.elapsed();
+        let disocclusions = warp.holes.disocclusions();
+
+        let mut predictions = Vec::with_capacity(methods.len());
+        for (method, acc) in methods.iter().zip(acc.iter_mut()) {
+            let prediction = match method {
+                Method::Internal(infiller) => {
+                    let ctx = InfillContext {
+                        intrinsics: clip.intrinsics(),
+                        last: FrameView { image: &last_frame.image, depth: &last_frame.depth, pose: clip.pose(t - 1) },
+                        before_last: Some(FrameView {
+                            image: &before_last.image,
+                            depth: &before_last.depth,
+                            pose: clip.pose(t - 3),
+                        }),
+                        target_pose: clip.pose(t),
+                        warped: &warp,
+                        ground_truth: infiller.uses_ground_truth().then_some(&truth.image),
+                    };
+                    let out =
+                        infiller.infill(&ctx).with_context(|| format!("{} on {name}, target {t}", infiller.name()))?;
+                    if infiller.uses_warp() {
+                        *acc.stage_time.entry("warp").or_default() += warp_time;
+                    }
+                    for (stage, d) in out.stages {
+                        *acc.stage_time.entry(stage).or_default() += d;
+                    }
+                    acc.timed_frames += 1;
+                    out.image.quantized_to_8bit()
+                }
+                Method::External { name: method_name, dir } => {
+                    let path = dir.join(name).join(format!("{t:04}.png"));
+                    let image = read_rgb(&path).with_context(|| format!("method {method_name}"))?;
+                    if !image.same_size(&truth.image) {
+                        bail!(
+                            "{}: {}x{} but the clip's frames are {}x{}",
+                            path.display(),
+                            image.width(),
+                            image.height(),
+                            truth.image.width(),
+                            truth.image.height()
+                        );
+                    }
+                    image.quantized_to_8bit()
+                }
+            };
+            acc.add(&score_frame(&prediction, &truth.image, &disocclusions));
+            predictions.push(prediction);
+        }
+        outcomes.insert(t, TargetOutcome { warp, predictions });
+        bar.inc(1);
+    }
+
+    if tc_applies(targets, clip.len()) {
+        add_temporal_consistency(clip, targets, &frames, &outcomes, acc);
+    }
+    Ok(())
+}
+
+/// Pools the TC tracks of this clip into every method's accumulator (SPEC §7).
+fn add_temporal_consistency(
+    clip: &Clip,
+    targets: &[usize],
+    frames: &BTreeMap<usize, Frame>,
+    outcomes: &BTreeMap<usize, TargetOutcome>,
+    acc: &mut [Accumulator],
+) {
+    let sequence: Vec<usize> = (targets[0] - 1..=targets[targets.len() - 1] + 1).collect();
+    let poses: Vec<_> = sequence.iter().map(|&i| *clip.pose(i)).collect();
+    let ground_truth: Vec<RgbImage> = sequence.iter().map(|i| frames[i].image.clone()).collect();
+    let disocclusions: Vec<Option<Vec<bool>>> =
+        sequence.iter().map(|i| outcomes.get(i).map(|o| o.warp.holes.disocclusions())).collect();
+    let anchor = &outcomes[&targets[0]].warp;
+    let anchor_known = anchor.holes.known();
+    for (m, acc) in acc.iter_mut().enumerate() {
+        let predictions: Vec<Option<RgbImage>> =
+            sequence.iter().map(|i| outcomes.get(i).map(|o| o.predictions[m].clone())).collect();
+        let seq = TcSequence {
+            intrinsics: clip.intrinsics(),
+            poses: &poses,
+            ground_truth: &ground_truth,
+            predictions: &predictions,
+            disocclusions: &disocclusions,
+            anchor_depth: &anchor.depth,
+            anchor_known: &anchor_known,
+        };
+        acc.tc_variances.extend(tc_track_variances(&seq));
+    }
+}
+
+/// The table printed by `ivp eval`.
+pub fn format_table(report: &EvalReport) -> String {
+    let opt = |x: Option<f64>, digits: usize| x.map_or("-".to_string(), |v| format!("{v:.digits$}"));
+    let mut rows = vec![[
+        "method".to_string(),
+        "MSE".into(),
+        "D-MSE".into(),
+        "SSIM".into(),
+        "D-SSIM".into(),
+        "TC".into(),
+        "ms/frame".into(),
+    ]];
+    for m in &report.methods {
+        let name = if m.uses_ground_truth { format!("{} (uses ground truth)", m.name) } else { m.name.clone() };
+        rows.push([
+            name,
+            format!("{:.1}", m.mse),
+            opt(m.d_mse, 1),
+            format!("{:.3}", m.ssim),
+            opt(m.d_ssim, 3),
+            opt(m.tc, 1),
+            opt(m.ms_per_frame, 1),
+        ]);
+    }
+    let widths: Vec<usize> = (0..7).map(|c| rows.iter().map(|r| r[c].len()).max().unwrap_or(0)).collect();
+    let mut out = String::new();
+    for (i, row) in rows.iter().enumerate() {
+        let cells: Vec<String> = row
+            .iter()
+            .enumerate()
+            .map(|(c, s)| if c == 0 { format!("{s:<w$}", w = widths[c]) } else { format!("{s:>w$}", w = widths[c]) })
+            .collect();
+        out.push_str(&format!("| {} |\n", cells.join(" | ")));
+        if i == 0 {
+            let rule: Vec<String> = widths.iter().map(|w| "-".repeat(*w)).collect();
+            out.push_str(&format!("|-{}-|\n", rule.join("-|-")));
+        }
+    }
+    let m = &report.methods[0];
+    out.push_str(&format!(
+        "{} clips, targets {:?}: {} frames, {} with disocclusions (D- averages), {} TC tracks\n",
+        report.clips.len(),
+        report.targets,
+        m.frames,
+        m.d_frames,
+        m.tc_tracks
+    ));
+    out
+}

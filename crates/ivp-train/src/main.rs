@@ -1,0 +1,248 @@
+//! `ivp`: the command-line program. A thin layer over ivp-core, ivp-data and ivp-train.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{bail, Context, Result};
+use clap::{Args, Parser, Subcommand};
+use ivp_core::infill::{classical_infiller, fill_new_regions, CLASSICAL_METHODS};
+use ivp_data::{find_clips, write_depth_exr, write_gray_png, write_rgb_png, Clip};
+use ivp_train::check::check_clip;
+use ivp_train::eval::{
+    self, check_targets, clip_name, evaluate, format_table, warp_to_target, Method, DEFAULT_TARGETS,
+};
+use ivp_train::write_atomic;
+
+#[global_allocator]
+static ALLOCATOR: mimalloc::MiMalloc = mimalloc::MiMalloc;
+
+#[derive(Parser)]
+#[command(
+    name = "ivp",
+    version,
+    about = "Infilling vector prediction: warp rendered frames to new poses and fill the disocclusions"
+)]
+struct Cli {
+    /// Worker threads (default: all cores).
+    #[arg(long, global = true)]
+    threads: Option<usize>,
+    /// Hide progress bars.
+    #[arg(long, short, global = true)]
+    quiet: bool,
+    /// Log more (repeat for more detail); RUST_LOG overrides.
+    #[arg(long, short, global = true, action = clap::ArgAction::Count)]
+    verbose: u8,
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Warp one frame into another frame's view, or export the warped targets of a dataset.
+    Warp(WarpArgs),
+    /// Score infilling methods on every clip of a dataset (SPEC §7 metrics).
+    Eval(EvalArgs),
+    /// Validate a clip and diagnose convention mistakes (pose direction, axes, depth units).
+    Check(CheckArgs),
+}
+
+#[derive(Args)]
+struct WarpArgs {
+    /// A clip folder (rgb/, depth/, TransformationMatrices.csv): warp --from into the view of --to.
+    #[arg(long, conflicts_with_all = ["data", "export_targets"], requires_all = ["from", "to"])]
+    clip: Option<PathBuf>,
+    /// Source frame index.
+    #[arg(long)]
+    from: Option<usize>,
+    /// Target frame index.
+    #[arg(long)]
+    to: Option<usize>,
+    /// A dataset folder (clips at any depth); use with --export-targets.
+    #[arg(long, requires = "export_targets")]
+    data: Option<PathBuf>,
+    /// Write OUT/<clip name>/<t:04>.png and <t:04>_holes.png for every evaluation target t
+    /// (frame t-1 warped to t), so another tool can infill the very same disocclusions.
+    #[arg(long, requires = "data")]
+    export_targets: bool,
+    /// Targets to export (with --export-targets).
+    #[arg(long, value_delimiter = ',', default_values_t = DEFAULT_TARGETS)]
+    targets: Vec<usize>,
+    /// Output folder. Single warp: warped.png (new regions filled by the common rule,
+    /// disocclusions black), holes.png (255 disocclusion, 128 new region, 0 known), depth.exr.
+    #[arg(long)]
+    out: PathBuf,
+}
+
+#[derive(Args)]
+struct EvalArgs {
+    /// Dataset folder: every clip below it is evaluated (or a single clip folder).
+    #[arg(long)]
+    data: PathBuf,
+    /// Comma-separated methods: copy (the last frame as it is), warp (disocclusions black),
+    /// fill (background of the 4 nearest known pixels), oracle (uses the ground truth).
+    #[arg(long, value_delimiter = ',', default_value = "copy,warp,fill")]
+    methods: Vec<String>,
+    /// Frames to predict in each clip (each target t is predicted from frames t-3 and t-1).
+    #[arg(long, value_delimiter = ',', default_values_t = DEFAULT_TARGETS)]
+    targets: Vec<usize>,
+    /// Also write the scores as JSON to this file.
+    #[arg(long)]
+    json: Option<PathBuf>,
+    /// Score frames predicted by another tool: NAME=DIR, read from DIR/<clip name>/<t:04>.png.
+    #[arg(long, value_name = "NAME=DIR")]
+    external: Vec<String>,
+}
+
+#[derive(Args)]
+struct CheckArgs {
+    /// The clip folder to check.
+    #[arg(long)]
+    clip: PathBuf,
+}
+
+fn main() -> Result<()> {
+    let cli = Cli::parse();
+    init_logging(cli.verbose);
+    if let Some(n) = cli.threads {
+        anyhow::ensure!(n > 0, "--threads must be at least 1");
+        rayon::ThreadPoolBuilder::new().num_threads(n).build_global().context("setting up the thread pool")?;
+    }
+    let progress = !cli.quiet;
+    match cli.command {
+        Command::Warp(args) => run_warp(args, progress),
+        Command::Eval(args) => run_eval(args, progress),
+        Command::Check(args) => run_check(args),
+    }
+}
+
+fn init_logging(verbose: u8) {
+    let default = match verbose {
+        0 => "warn",
+        1 => "info",
+        _ => "debug",
+    };
+    let filter = tracing_subscriber::EnvFilter::try_from_default_env()
+        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(default));
+    tracing_subscriber::fmt().with_env_filter(filter).with_writer(std::io::stderr).init();
+}
+
+fn run_warp(args: WarpArgs, progress: bool) -> Result<()> {
+    if let Some(data) = &args.data {
+        return export_targets(data, &args.targets, &args.out, progress);
+    }
+    let (Some(dir), Some(from), Some(to)) = (&args.clip, args.from, args.to) else {
+        bail!("give either --clip DIR --from I --to J, or --data DIR --export-targets");
+    };
+    let clip = Clip::open(dir)?;
+    for i in [from, to] {
+        if i >= clip.len() {
+            bail!("{}: frame {i} does not exist (the clip has frames 0..={})", dir.display(), clip.len() - 1);
+        }
+    }
+    let frame = clip.load_frame(from)?;
+    let transform = ivp_core::relative_pose(clip.pose(from), clip.pose(to));
+    let warp = ivp_core::warp_forward(&frame.image, &frame.depth, clip.intrinsics(), &transform);
+    std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
+    write_warp(&warp, &args.out.join("warped.png"), &args.out.join("holes.png"))?;
+    write_depth_exr(args.out.join("depth.exr"), &warp.depth)?;
+    let holes = &warp.holes;
+    let total = holes.classes().len() as f64;
+    println!(
+        "warped frame {from} to {to}: {:.2}% disocclusions, {:.2}% new regions -> {}",
+        100.0 * holes.count(ivp_core::PixelClass::Disocclusion) as f64 / total,
+        100.0 * holes.count(ivp_core::PixelClass::NewRegion) as f64 / total,
+        args.out.display()
+    );
+    Ok(())
+}
+
+/// The warped frame with new regions filled by the common rule and disocclusions black, and its holes image.
+fn write_warp(warp: &ivp_core::Warp, image_path: &Path, holes_path: &Path) -> Result<()> {
+    let mut image = warp.image.clone();
+    fill_new_regions(&mut image, &warp.holes);
+    write_rgb_png(image_path, &image)?;
+    write_gray_png(holes_path, warp.holes.width(), warp.holes.height(), &warp.holes.to_gray8())?;
+    Ok(())
+}
+
+fn export_targets(data: &Path, targets: &[usize], out: &Path, progress: bool) -> Result<()> {
+    let clips: Vec<Clip> = find_clips(data)?.iter().map(Clip::open).collect::<Result<_, _>>()?;
+    for clip in &clips {
+        check_targets(clip, targets)?;
+    }
+    let bar = eval::progress_bar(progress, (clips.len() * targets.len()) as u64, "exporting");
+    for clip in &clips {
+        let name = clip_name(data, clip.path());
+        let dir = out.join(&name);
+        std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
+        for &t in targets {
+            let warp = warp_to_target(clip, &clip.load_frame(t - 1)?, t);
+            write_warp(&warp, &dir.join(format!("{t:04}.png")), &dir.join(format!("{t:04}_holes.png")))?;
+            bar.inc(1);
+        }
+    }
+    bar.finish_and_clear();
+    println!("exported {} targets of {} clips to {}", clips.len() * targets.len(), clips.len(), out.display());
+    Ok(())
+}
+
+fn parse_methods(args: &EvalArgs) -> Result<Vec<Method>> {
+    let mut methods = Vec::new();
+    for name in args.methods.iter().map(|m| m.trim()).filter(|m| !m.is_empty()) {
+        let Some(m) = classical_infiller(name) else {
+            bail!("unknown method `{name}`: choose among {}", CLASSICAL_METHODS.join(", "));
+        };
+        methods.push(Method::Internal(m));
+    }
+    for spec in &args.external {
+        let Some((name, dir)) = spec.split_once('=') else {
+            bail!("--external takes NAME=DIR, got `{spec}`");
+        };
+        let dir = PathBuf::from(dir);
+        anyhow::ensure!(dir.is_dir(), "--external {name}: {} is not a folder", dir.display());
+        methods.push(Method::External { name: name.to_string(), dir });
+    }
+    let mut names: Vec<&str> = methods.iter().map(|m| m.name()).collect();
+    names.sort_unstable();
+    if let Some(w) = names.windows(2).find(|w| w[0] == w[1]) {
+        bail!("method `{}` is given twice", w[0]);
+    }
+    Ok(methods)
+}
+
+fn run_eval(args: EvalArgs, progress: bool) -> Result<()> {
+    let methods = parse_methods(&args)?;
+    let report = evaluate(&args.data, &args.targets, &methods, progress)?;
+    print!("{}", format_table(&report));
+    if let Some(path) = &args.json {
+        let json = serde_json::to_string_pretty(&report)?;
+        write_atomic(path, json.as_bytes())?;
+        println!("scores written to {}", path.display());
+    }
+    Ok(())
+}
+
+fn run_check(args: CheckArgs) -> Result<()> {
+    let clip = Clip::open(&args.clip)?;
+    println!(
+        "{}: {} frames of {}x{}, fx {:.2} fy {:.2} cx {:.2} cy {:.2}",
+        args.clip.display(),
+        clip.len(),
+        clip.width(),
+        clip.height(),
+        clip.intrinsics().fx,
+        clip.intrinsics().fy,
+        clip.intrinsics().cx,
+        clip.intrinsics().cy
+    );
+    let report = check_clip(&clip)?;
+    println!("warping frames {:?} under each reading (mean absolute error on known pixels, 0..255):", report.pairs);
+    for fit in &report.fits {
+        println!("  {:>8.2}  {:>5.1}% covered  {}", fit.mae, 100.0 * fit.known_fraction, fit.reading.describe());
+    }
+    println!("  {:>8.2}  {:>5}          repeating the frame without warping", report.copy_mae, "");
+    println!("{}", report.verdict());
+    if !report.passes() {
+        std::process::exit(1);
+    }
+    Ok(())
+}

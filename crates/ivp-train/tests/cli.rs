@@ -1,0 +1,140 @@
+//! The `ivp` program end to end on the real Blender clips of shared/data.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+use ivp_core::WorldToCamera;
+use ivp_data::{read_poses, read_rgb, write_poses, Clip, POSES_FILE};
+
+fn blender_dev() -> PathBuf {
+    let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data/blender-dev");
+    assert!(dir.is_dir(), "{} is missing: these tests need shared/data beside the repository", dir.display());
+    dir
+}
+
+fn ivp(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_ivp")).args(args).arg("--quiet").output().expect("running ivp")
+}
+
+fn ok(args: &[&str]) -> String {
+    let out = ivp(args);
+    assert!(out.status.success(), "ivp {args:?} failed:\n{}", String::from_utf8_lossy(&out.stderr));
+    String::from_utf8(out.stdout).unwrap()
+}
+
+fn s(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
+
+/// A copy of a clip whose poses are rewritten by `f`.
+fn clip_with_poses(src: &Path, dst: &Path, f: impl Fn(&WorldToCamera) -> WorldToCamera) {
+    for sub in ["rgb", "depth"] {
+        std::fs::create_dir_all(dst.join(sub)).unwrap();
+        for entry in std::fs::read_dir(src.join(sub)).unwrap() {
+            let entry = entry.unwrap();
+            std::fs::copy(entry.path(), dst.join(sub).join(entry.file_name())).unwrap();
+        }
+    }
+    std::fs::copy(src.join("CameraIntrinsics.csv"), dst.join("CameraIntrinsics.csv")).unwrap();
+    let poses: Vec<_> = read_poses(&src.join(POSES_FILE)).unwrap().iter().map(f).collect();
+    write_poses(&dst.join(POSES_FILE), &poses).unwrap();
+}
+
+#[test]
+fn warp_writes_image_holes_and_depth() {
+    let out = tempfile::tempdir().unwrap();
+    let clip = blender_dev().join("clip_000");
+    let stdout = ok(&["warp", "--clip", s(&clip), "--from", "5", "--to", "6", "--out", s(out.path())]);
+    assert!(stdout.contains("disocclusions"), "{stdout}");
+    let warped = read_rgb(out.path().join("warped.png")).unwrap();
+    let holes = image_gray(&out.path().join("holes.png"));
+    assert_eq!((warped.width(), warped.height()), (320, 240));
+    assert!(holes.iter().all(|&h| h == 0 || h == 128 || h == 255));
+    assert!(holes.contains(&255), "a warp of this clip has disocclusions");
+    // Disocclusions stay black; new regions are filled.
+    for (p, &h) in warped.pixels().iter().zip(&holes) {
+        if h == 255 {
+            assert_eq!(*p, [0.0; 3]);
+        }
+    }
+    let depth = ivp_data::read_depth_exr(out.path().join("depth.exr")).unwrap();
+    assert_eq!((depth.width(), depth.height()), (320, 240));
+}
+
+fn image_gray(path: &Path) -> Vec<u8> {
+    let img = read_rgb(path).unwrap();
+    img.pixels().iter().map(|p| (p[0] * 255.0).round() as u8).collect()
+}
+
+/// Exported warps scored with --external score exactly as the internal `warp` method.
+#[test]
+fn exported_targets_score_like_the_internal_method() {
+    let out = tempfile::tempdir().unwrap();
+    let data = blender_dev();
+    let exported = out.path().join("exported");
+    ok(&["warp", "--data", s(&data), "--export-targets", "--out", s(&exported)]);
+    assert!(exported.join("clip_002/0008.png").is_file());
+    assert!(exported.join("clip_002/0008_holes.png").is_file());
+    let json = out.path().join("scores.json");
+    let table = ok(&[
+        "eval",
+        "--data",
+        s(&data),
+        "--methods",
+        "warp,fill",
+        "--external",
+        &format!("exported={}", s(&exported)),
+        "--json",
+        s(&json),
+    ]);
+    assert!(table.contains("| fill"), "{table}");
+    let scores: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    let (a, b) = (&scores["methods"]["warp"], &scores["methods"]["exported"]);
+    for key in ["mse", "d_mse", "ssim", "d_ssim", "tc", "tc_tracks", "frames", "d_frames"] {
+        assert_eq!(a[key], b[key], "{key}");
+    }
+    assert!(a["ms_per_frame"].as_f64().unwrap() > 0.0);
+    assert!(a["ms_by_stage"]["warp"].as_f64().is_some());
+}
+
+#[test]
+fn eval_names_unknown_methods_and_missing_external_frames() {
+    let data = blender_dev();
+    let out = ivp(&["eval", "--data", s(&data), "--methods", "copy,magic"]);
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("unknown method `magic`"));
+
+    let empty = tempfile::tempdir().unwrap();
+    let out = ivp(&["eval", "--data", s(&data), "--methods", "copy", "--external", &format!("x={}", s(empty.path()))]);
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("0006.png"), "{err}");
+}
+
+#[test]
+fn check_passes_a_good_clip() {
+    let stdout = ok(&["check", "--clip", s(&blender_dev().join("clip_001"))]);
+    assert!(stdout.contains("OK"), "{stdout}");
+}
+
+#[test]
+fn check_diagnoses_camera_to_world_poses() {
+    let tmp = tempfile::tempdir().unwrap();
+    clip_with_poses(&blender_dev().join("clip_003"), tmp.path(), |e| WorldToCamera(e.0.inverse()));
+    assert!(Clip::open(tmp.path()).is_ok());
+    let out = ivp(&["check", "--clip", s(tmp.path())]);
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(!out.status.success(), "{stdout}");
+    assert!(stdout.contains("PROBLEM") && stdout.contains("camera-to-world"), "{stdout}");
+}
+
+#[test]
+fn check_diagnoses_opengl_axes() {
+    let tmp = tempfile::tempdir().unwrap();
+    let flip = glam::DMat4::from_diagonal(glam::DVec4::new(1.0, -1.0, -1.0, 1.0));
+    clip_with_poses(&blender_dev().join("clip_000"), tmp.path(), |e| WorldToCamera(flip * e.0));
+    let out = ivp(&["check", "--clip", s(tmp.path())]);
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(!out.status.success(), "{stdout}");
+    assert!(stdout.contains("OpenGL axes (y up"), "{stdout}");
+}

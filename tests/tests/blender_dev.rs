@@ -1,0 +1,59 @@
+//! Acceptance checks on real Blender renders (shared/data/blender-dev).
+
+use ivp_core::infill::classical_infiller;
+use ivp_data::{find_clips, Clip};
+use ivp_tests::blender_dev;
+use ivp_train::eval::{evaluate, Method, DEFAULT_TARGETS};
+
+/// Warping frame n to n+1 explains the next frame: mean absolute error on known pixels <= 4.
+#[test]
+fn warping_to_the_next_frame_matches_it_on_known_pixels() {
+    for dir in find_clips(blender_dev()).unwrap() {
+        let clip = Clip::open(&dir).unwrap();
+        for n in 0..clip.len() - 1 {
+            let (src, dst) = (clip.load_frame(n).unwrap(), clip.load_frame(n + 1).unwrap());
+            let t = ivp_core::relative_pose(clip.pose(n), clip.pose(n + 1));
+            let warp = ivp_core::warp_forward(&src.image, &src.depth, clip.intrinsics(), &t);
+            let known = warp.holes.known();
+            let (mut sum, mut count) = (0.0f64, 0usize);
+            for ((p, q), k) in warp.image.pixels().iter().zip(dst.image.pixels()).zip(&known) {
+                if *k {
+                    sum += p.iter().zip(q).map(|(a, b)| (a - b).abs() as f64).sum::<f64>() / 3.0;
+                    count += 1;
+                }
+            }
+            let mae = 255.0 * sum / count as f64;
+            assert!(count > known.len() * 9 / 10, "{}: {n} -> {}: only {count} known pixels", dir.display(), n + 1);
+            assert!(mae <= 4.0, "{}: {n} -> {}: mean absolute error {mae:.2} > 4", dir.display(), n + 1);
+        }
+    }
+}
+
+/// The scores of the classical methods agree with an independent implementation of SPEC §7
+/// (shared/data/README.md) within 2%, and `fill` beats `warp` and `copy` on disocclusions.
+#[test]
+fn classical_methods_score_as_the_independent_implementation() {
+    let methods: Vec<Method> =
+        ["copy", "warp", "fill", "oracle"].iter().map(|m| Method::Internal(classical_infiller(m).unwrap())).collect();
+    let report = evaluate(&blender_dev(), &DEFAULT_TARGETS, &methods, false).unwrap();
+    // method, MSE, D-MSE, SSIM, D-SSIM, TC from shared/data/README.md.
+    let reference = [
+        ("copy", 169.6, 1956.0, 0.808, 0.414, 385.7),
+        ("warp", 51.9, 7852.2, 0.952, 0.195, 2175.3),
+        ("fill", 23.1, 581.8, 0.965, 0.742, 184.8),
+        ("oracle", 22.7, 585.2, 0.965, 0.748, 156.5),
+    ];
+    let close = |got: f64, want: f64| (got - want).abs() <= 0.02 * want.abs();
+    for (m, (name, mse, d_mse, ssim, d_ssim, tc)) in report.methods.iter().zip(reference) {
+        assert_eq!(m.name, name);
+        assert_eq!((m.frames, m.d_frames), (12, 11), "{name}: frames counted");
+        let got = [m.mse, m.d_mse.unwrap(), m.ssim, m.d_ssim.unwrap(), m.tc.unwrap()];
+        for (g, w) in got.iter().zip([mse, d_mse, ssim, d_ssim, tc]) {
+            assert!(close(*g, w), "{name}: {got:?} vs reference {:?}", [mse, d_mse, ssim, d_ssim, tc]);
+        }
+        assert!((m.tc_tracks as f64 - 9286.0).abs() <= 0.02 * 9286.0, "{name}: {} TC tracks", m.tc_tracks);
+    }
+    let d_mse = |i: usize| report.methods[i].d_mse.unwrap();
+    assert!(d_mse(2) < d_mse(1) && d_mse(2) < d_mse(0), "fill must beat warp and copy in D-MSE");
+    assert!(report.methods[3].uses_ground_truth);
+}
