@@ -180,16 +180,6 @@ fn snap(x: f64) -> f64 {
     }
 }
 
-/// The point a source pixel becomes in the target view, or `None` when it is not splatted.
-#[inline]
-fn moved_point(p: &Projector, u: usize, row: &[f64; 3], d: f32) -> Option<[f64; 3]> {
-    if !is_valid_depth(d) {
-        return None;
-    }
-    let x = p.transform(u, row, d as f64);
-    is_in_front(&x).then_some(x)
-}
-
 /// A moved point is splatted only when it is finite and in front of the target camera.
 #[inline]
 fn is_in_front(x: &[f64; 3]) -> bool {
