@@ -2,6 +2,7 @@
 
 pub mod check;
 pub mod eval;
+pub mod sheet;
 
 use std::io::Write;
 use std::path::Path;
