@@ -26,6 +26,10 @@ fn bench_warp(c: &mut Criterion) {
     group.throughput(Throughput::Elements((w * h) as u64));
     group.sample_size(30);
     group.bench_function("1920x1080", |b| b.iter(|| warp_forward(&image, &depth, &k, &t)));
+    // A 10 degree roll and a bigger step: each row of the source crosses many rows of the target,
+    // so that the warp projects more of the frame twice, to reach two bands of target rows.
+    let roll = DMat4::from_rotation_z(10f64.to_radians()) * DMat4::from_translation(DVec3::new(-0.05, 0.02, 0.01));
+    group.bench_function("1920x1080 roll", |b| b.iter(|| warp_forward(&image, &depth, &k, &roll)));
     group.finish();
 }
 

@@ -7,6 +7,7 @@ pub mod holes;
 pub mod image;
 pub mod infill;
 pub mod metrics;
+pub mod ops;
 pub mod prior;
 pub mod warp;
 

@@ -7,13 +7,20 @@
 //! coordinates within [`SNAP_PX`] of an integer snapped onto it, bilinear weights below
 //! [`MIN_BILINEAR_WEIGHT`] dropped.
 //!
-//! Work is split into fixed bands of source rows that never depend on the number of threads, and
-//! bands are summed in a fixed order: the same input gives the same bits on any machine.
+//! The depth weights need the largest depth before anything is splatted, so there are two passes.
+//! Pass 1 projects every source pixel to find that depth and, for each chunk of [`CHUNK`] source
+//! pixels of a row, the target rows it reaches. Pass 2 cuts the target frame into bands of
+//! [`BAND_ROWS`] rows; each band projects again the chunks that reach it, in source order, and
+//! accumulates into a scratch small enough to stay in cache. Every target pixel therefore sums its
+//! splats in source order, whatever the number of threads, bands or chunks: the same input gives
+//! the same bits on any machine, and the same bits as a plain serial loop over the source pixels.
+
+use std::ops::Range;
+use std::sync::Mutex;
 
 use glam::DMat4;
 use rayon::prelude::*;
 
-use crate::image::is_valid_depth;
 use crate::{DepthMap, HoleMask, Image, Intrinsics, RgbImage};
 
 /// A transformed point must be at least this far in front of the camera to be splatted.
@@ -26,8 +33,18 @@ pub const DEPTH_WEIGHT_RANGE: f64 = 50.0;
 pub const SNAP_PX: f64 = 1e-6;
 /// Bilinear weights below this are dropped, so a far surface never loses to a sliver of a near one.
 pub const MIN_BILINEAR_WEIGHT: f64 = 1e-3;
-/// Source rows per band: fixed, so the summation order never depends on the thread count.
+/// Source pixels of a row projected together: the unit of the target-row extents of pass 1 and
+/// of the vectorised loops. Small, so that a chunk of a row tilted by a roll of the camera
+/// reaches few bands.
+const CHUNK: usize = 64;
+/// Target rows per band of pass 2. Few chunks reach two bands and are projected twice (7% more
+/// for a frame of head motion), and a band's accumulator (32 bytes a pixel, 2 MB for 1920
+/// columns) stays in cache.
 const BAND_ROWS: usize = 32;
+/// f32 lanes of one accumulator block.
+const LANES: usize = 8;
+/// Accumulator cells past a band's pixels that take the splats not made, and are never read.
+const SINKS: usize = 16;
 
 /// A frame warped into another view.
 #[derive(Clone, Debug)]
@@ -70,28 +87,41 @@ struct Splatted<const C: usize> {
     known: Vec<bool>,
 }
 
+/// Where one source point goes.
+#[derive(Clone, Copy)]
+struct Projection {
+    /// In front of the camera (see [`Projector::transform`]) and at least one of its four target
+    /// pixels is inside the frame.
+    lands: bool,
+    /// Depth in the target camera.
+    z: f64,
+    /// Landing coordinates, snapped.
+    qx: f64,
+    qy: f64,
+}
+
 /// The per-source-pixel part of the warp, prepared once per call.
 struct Projector {
     k: Intrinsics,
-    /// `R * [(u - cx) / fx, 0, 0]` for each column.
-    col_term: Vec<[f64; 3]>,
+    width: usize,
+    height: usize,
+    /// The components of `R * [(u - cx) / fx, 0, 0]` for each column, one vector each so that
+    /// loops over a chunk vectorise.
+    col_terms: [Vec<f64>; 3],
     rotation_y: [f64; 3],
     rotation_z: [f64; 3],
     translation: [f64; 3],
 }
 
 impl Projector {
-    fn new(width: usize, k: &Intrinsics, t: &DMat4) -> Self {
+    fn new(width: usize, height: usize, k: &Intrinsics, t: &DMat4) -> Self {
         let (rx, ry, rz) = (t.x_axis, t.y_axis, t.z_axis);
-        let col_term = (0..width)
-            .map(|u| {
-                let a = (u as f64 - k.cx) / k.fx;
-                [rx.x * a, rx.y * a, rx.z * a]
-            })
-            .collect();
+        let a: Vec<f64> = (0..width).map(|u| (u as f64 - k.cx) / k.fx).collect();
         Self {
             k: *k,
-            col_term,
+            width,
+            height,
+            col_terms: [rx.x, rx.y, rx.z].map(|r| a.iter().map(|a| r * a).collect()),
             rotation_y: [ry.x, ry.y, ry.z],
             rotation_z: [rz.x, rz.y, rz.z],
             translation: [t.w_axis.x, t.w_axis.y, t.w_axis.z],
@@ -104,20 +134,249 @@ impl Projector {
         std::array::from_fn(|i| self.rotation_y[i] * b + self.rotation_z[i])
     }
 
-    /// The target-camera points of row `v`, whatever their depth (callers skip invalid ones).
-    /// A tight loop on its own, so that it vectorises.
-    fn transform_row(&self, v: usize, depth_row: &[[f32; 1]], points: &mut [[f64; 3]]) {
-        let row = self.row_term(v);
-        for (u, (p, z)) in points.iter_mut().zip(depth_row).enumerate() {
-            *p = self.transform(u, &row, z[0] as f64);
-        }
+    /// The column terms of pixels `u0..u0 + n`.
+    fn col_terms(&self, u0: usize, n: usize) -> [&[f64]; 3] {
+        [0, 1, 2].map(|i| &self.col_terms[i][u0..u0 + n])
     }
 
-    /// The target-camera point of source pixel `(u, _)` with depth `d`, given its row term.
-    #[inline]
-    fn transform(&self, u: usize, row: &[f64; 3], d: f64) -> [f64; 3] {
-        let c = &self.col_term[u];
-        std::array::from_fn(|i| d * (c[i] + row[i]) + self.translation[i])
+    /// Moves the source pixel with column term `col`, row term `row` and depth `depth` into the
+    /// target camera. Also says whether its depth is valid (`is_valid_depth`, on the f64 so that
+    /// all masks have the same width) and the moved depth finite and in front of the camera;
+    /// the point is then in front if its x and y are finite too ([`in_front`]).
+    /// Branch-free (`&` on bools, selects) like the rest, so that the loops calling it vectorise.
+    #[inline(always)]
+    fn transform(&self, col: [f64; 3], row: &[f64; 3], depth: f32) -> ([f64; 3], bool) {
+        let d = depth as f64;
+        let x: [f64; 3] = std::array::from_fn(|i| d * (col[i] + row[i]) + self.translation[i]);
+        (x, (d > 0.0) & (d < f64::INFINITY) & (x[2] > MIN_Z) & (x[2] < f64::INFINITY))
+    }
+
+    /// Projects the source pixel with column term `col`, row term `row` and depth `depth`.
+    #[inline(always)]
+    fn project(&self, col: [f64; 3], row: &[f64; 3], depth: f32) -> Projection {
+        let (x, z_in_front) = self.transform(col, row, depth);
+        let inv_z = 1.0 / x[2];
+        let qx = snap(self.k.fx * x[0] * inv_z + self.k.cx);
+        let qy = snap(self.k.fy * x[1] * inv_z + self.k.cy);
+        // False for infinities and NaNs, so with a finite z it implies finite x and y.
+        let inside = (qx > -1.0) & (qx < self.width as f64) & (qy > -1.0) & (qy < self.height as f64);
+        Projection { lands: z_in_front & inside, z: x[2], qx, qy }
+    }
+
+    /// Pass 1 over the pixels `u0..` of row `v` with depths `depth`: the largest clamped depth in
+    /// front of the camera and the target rows reached.
+    fn survey(&self, v: usize, u0: usize, depth: &[[f32; 1]]) -> Survey {
+        let n = depth.len();
+        let row = self.row_term(v);
+        let [cx, cy, cz] = self.col_terms(u0, n);
+        let (rows, last_row) = (self.height as f64, (self.height - 1) as f64);
+        // Per point first, reduced after: the loop vectorises only without a reduction in it.
+        let (mut z, mut first, mut last) = ([0.0; CHUNK], [0.0; CHUNK], [0.0; CHUNK]);
+        let (z, first, last) = (&mut z[..n], &mut first[..n], &mut last[..n]);
+        for p in 0..n {
+            let (x, z_in_front) = self.transform([cx[p], cy[p], cz[p]], &row, depth[p][0]);
+            z[p] = select(in_front(&x, z_in_front), min(x[2], MAX_WEIGHT_DEPTH), 0.0);
+            // The rows reached, with a margin instead of the snap (which moves a coordinate by
+            // less than SNAP_PX) and whatever the column: a little more than `project` finds, for
+            // less work. Clamped to the frame, and the first negated so that it is a maximum too.
+            let qy = self.k.fy * x[1] * (1.0 / x[2]) + self.k.cy;
+            let (low, high) = ((qy - 2.0 * SNAP_PX).floor(), (qy + 2.0 * SNAP_PX).floor());
+            let reaches = z_in_front & (high >= -1.0) & (low < rows);
+            first[p] = select(reaches, -max(low, 0.0), f64::NEG_INFINITY);
+            last[p] = select(reaches, min(high + 1.0, last_row), f64::NEG_INFINITY);
+        }
+        let (first, last) = (-largest(first), largest(last));
+        let rows = if first <= last { TargetRows { first: first as i32, last: last as i32 } } else { TargetRows::NONE };
+        Survey { z_max: largest(z), rows }
+    }
+
+    /// Pass 2, first half: the splats of the pixels `u0..` of row `v` that fall in the target
+    /// rows `band`, into `out`. A target pixel is an index in the band; a splat that is not made
+    /// goes to one of the [`SINKS`] cells from `sink` on.
+    #[allow(clippy::too_many_arguments)]
+    fn weigh(
+        &self,
+        v: usize,
+        u0: usize,
+        depth: &[[f32; 1]],
+        band: &Range<usize>,
+        sink: usize,
+        weight_of_depth: &DepthWeight,
+        out: &mut ChunkSplats,
+    ) {
+        let n = depth.len();
+        let row = self.row_term(v);
+        let [cx, cy, cz] = self.col_terms(u0, n);
+        let (width, last_col) = (self.width as f64, (self.width - 1) as f64);
+        let (band_first, band_rows) = (band.start as f64, band.len() as f64);
+        let offsets = [0, 1, self.width as i64, self.width as i64 + 1];
+        let ChunkSplats { weight: [w00, w10, w01, w11], target: [t00, t10, t01, t11], z, weight_z } = out;
+        let (w00, w10, w01, w11) = (&mut w00[..n], &mut w10[..n], &mut w01[..n], &mut w11[..n]);
+        let (t00, t10, t01, t11) = (&mut t00[..n], &mut t10[..n], &mut t01[..n], &mut t11[..n]);
+        let (z, weight_z) = (&mut z[..n], &mut weight_z[..n]);
+        // In f64 like the projection, 4 lanes a vector; the depth weights, in f32, follow in a
+        // loop of their own that runs 8 lanes a vector.
+        for p in 0..n {
+            let q = self.project([cx[p], cy[p], cz[p]], &row, depth[p][0]);
+            let (fx0, fy0) = (q.qx.floor(), q.qy.floor());
+            let (ax, ay) = (q.qx - fx0, q.qy - fy0);
+            let bilinear = [(1.0 - ax) * (1.0 - ay), ax * (1.0 - ay), (1.0 - ax) * ay, ax * ay];
+            // Whether the left and right target columns are in the frame and the top and bottom
+            // target rows in the band (none of them, for a point that does not land).
+            let top_row = fy0 - band_first;
+            let in_frame = [q.lands & (fx0 >= 0.0), q.lands & (fx0 < last_col)];
+            let in_band = [(top_row >= 0.0) & (top_row < band_rows), (top_row >= -1.0) & (top_row < band_rows - 1.0)];
+            let top_left = integer_to_i64(select(q.lands, top_row * width + fx0, 0.0));
+            // Sinks in turns, so that the splats not made by neighbouring points do not wait
+            // on each other.
+            let sink = (sink + p % 4 * 4) as i64;
+            let splat = |c: usize| {
+                let made = in_frame[c & 1] & in_band[c >> 1] & (bilinear[c] >= MIN_BILINEAR_WEIGHT);
+                // The weight of a splat not made is anything, even NaN: only its sink sees it.
+                (bilinear[c] as f32, select_i64(made, top_left + offsets[c], sink + c as i64))
+            };
+            ((w00[p], t00[p]), (w10[p], t10[p]), (w01[p], t01[p]), (w11[p], t11[p])) =
+                (splat(0), splat(1), splat(2), splat(3));
+            z[p] = q.z as f32;
+            // Only landing points reach the fast ln and exp, which assume a depth of at least 0.
+            weight_z[p] = select(q.lands, min(q.z, MAX_WEIGHT_DEPTH), 0.0) as f32;
+        }
+        for ((((w00, w10), w01), w11), &z) in w00.iter_mut().zip(w10).zip(w01).zip(w11).zip(&*weight_z) {
+            let wd = weight_of_depth.at_clamped(z);
+            (*w00, *w10, *w01, *w11) = (*w00 * wd, *w10 * wd, *w01 * wd, *w11 * wd);
+        }
+    }
+}
+
+/// A moved point `x` counts towards the largest depth when its depth is in front of the camera
+/// (`z_in_front`, see [`Projector::transform`]) and its x and y are finite too.
+#[inline(always)]
+fn in_front(x: &[f64; 3], z_in_front: bool) -> bool {
+    z_in_front & (x[0].abs() < f64::INFINITY) & (x[1].abs() < f64::INFINITY)
+}
+
+/// `x as i64` for an integer `x` with `|x| < 2^51`: the bits of `x + 1.5 * 2^52` hold it in their
+/// low half, offset. A float-to-int cast, which saturates, would keep the loop from vectorising.
+#[inline(always)]
+fn integer_to_i64(x: f64) -> i64 {
+    const MAGIC: f64 = 6_755_399_441_055_744.0;
+    (x + MAGIC).to_bits() as i64 - MAGIC.to_bits() as i64
+}
+
+/// The largest of `xs` (-inf if none), for numbers. In lanes, so that it vectorises: a float
+/// maximum is not associative for the compiler, which keeps a plain fold sequential.
+fn largest(xs: &[f64]) -> f64 {
+    let mut lanes = [f64::NEG_INFINITY; 4];
+    let mut chunks = xs.chunks_exact(lanes.len());
+    for chunk in &mut chunks {
+        lanes = std::array::from_fn(|l| max(lanes[l], chunk[l]));
+    }
+    chunks.remainder().iter().chain(&lanes).fold(f64::NEG_INFINITY, |a, &b| max(a, b))
+}
+
+/// `if keep { x } else { otherwise }` with bit masks. The compiler turns a plain `if` into
+/// branches, and then in vectorised loops into masked stores, which are slow.
+#[inline(always)]
+fn select(keep: bool, x: f64, otherwise: f64) -> f64 {
+    let mask = (keep as u64).wrapping_neg();
+    f64::from_bits((x.to_bits() & mask) | (otherwise.to_bits() & !mask))
+}
+
+/// [`select`] for i64.
+#[inline(always)]
+fn select_i64(keep: bool, x: i64, otherwise: i64) -> i64 {
+    let mask = -(keep as i64);
+    (x & mask) | (otherwise & !mask)
+}
+
+/// `a.min(b)` for numbers, without the NaN handling of `f64::min` that keeps loops from vectorising.
+#[inline(always)]
+fn min(a: f64, b: f64) -> f64 {
+    if a < b {
+        a
+    } else {
+        b
+    }
+}
+
+/// `a.max(b)` for numbers, without the NaN handling of `f64::max` that keeps loops from vectorising.
+#[inline(always)]
+fn max(a: f64, b: f64) -> f64 {
+    if a > b {
+        a
+    } else {
+        b
+    }
+}
+
+/// What pass 1 finds about a chunk of source pixels.
+struct Survey {
+    /// The largest `min(z, MAX_WEIGHT_DEPTH)` of the points in front of the camera (0 if none).
+    z_max: f64,
+    rows: TargetRows,
+}
+
+/// The target rows `first..=last` that some source points reach; empty when `first > last`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct TargetRows {
+    first: i32,
+    last: i32,
+}
+
+impl TargetRows {
+    const NONE: Self = Self { first: i32::MAX, last: i32::MIN };
+
+    fn union(self, other: Self) -> Self {
+        Self { first: self.first.min(other.first), last: self.last.max(other.last) }
+    }
+
+    fn meets(self, band: &Range<usize>) -> bool {
+        self.first <= self.last && (self.first as usize) < band.end && (self.last as usize) >= band.start
+    }
+}
+
+/// The splats of one chunk of source pixels into one band, one array per quantity: filled by
+/// loops that vectorise, then applied by a scalar one.
+struct ChunkSplats {
+    /// Weights of the splats to the top-left, top-right, bottom-left and bottom-right target
+    /// pixels of each point.
+    weight: [[f32; CHUNK]; 4],
+    /// Index in the band's accumulator of each splat's target pixel, or of a sink for a splat
+    /// not made (dropped, outside the frame or outside the band).
+    target: [[i64; CHUNK]; 4],
+    /// Depth in the target camera.
+    z: [f32; CHUNK],
+    /// The depth that enters the depth weight: clamped, 0 for a point behind the camera.
+    weight_z: [f32; CHUNK],
+}
+
+impl ChunkSplats {
+    fn new() -> Box<Self> {
+        Box::new(Self { weight: [[0.0; CHUNK]; 4], target: [[0; CHUNK]; 4], z: [0.0; CHUNK], weight_z: [0.0; CHUNK] })
+    }
+}
+
+/// One block of a target pixel's accumulator: lanes `[weight, weight * z, weight * value...]`,
+/// padded; a field of more than `LANES - 2` channels takes several blocks per pixel. A splat is
+/// then one vector load, multiply-add and store per block, and being aligned a block never
+/// straddles cache lines.
+#[derive(Clone, Copy, Default)]
+#[repr(C, align(32))]
+struct Block([f32; LANES]);
+
+/// Accumulator blocks per target pixel of a field of `c` channels.
+const fn blocks_per_pixel(c: usize) -> usize {
+    (c + 2).div_ceil(LANES)
+}
+
+/// Lane `k` of the accumulator of a pixel (over all its blocks), before weighting: `1`, the
+/// depth, the value's channels, then padding.
+#[inline(always)]
+fn lane<const C: usize>(k: usize, z: f32, value: &[f32; C]) -> f32 {
+    match k {
+        0 => 1.0,
+        1 => z,
+        _ => value.get(k - 2).copied().unwrap_or(0.0),
     }
 }
 
@@ -134,9 +393,15 @@ impl DepthWeight {
         Self { scale: (-DEPTH_WEIGHT_RANGE / z_max.min(MAX_WEIGHT_DEPTH).ln_1p()) as f32 }
     }
 
-    #[inline]
+    #[cfg(test)]
     fn at(&self, z: f64) -> f32 {
-        exp_nonpositive(self.scale * ln_at_least_one(1.0 + z.min(MAX_WEIGHT_DEPTH) as f32))
+        self.at_clamped(z.min(MAX_WEIGHT_DEPTH) as f32)
+    }
+
+    /// The weight of depth `z` already clamped to `0..=MAX_WEIGHT_DEPTH`.
+    #[inline(always)]
+    fn at_clamped(&self, z: f32) -> f32 {
+        exp_nonpositive(self.scale * ln_at_least_one(1.0 + z))
     }
 }
 
@@ -163,44 +428,25 @@ fn exp_nonpositive(y: f32) -> f32 {
     // ln 2 split in two (Cody-Waite) so that `n * LN2_HI` is exact for the n that occur here.
     const LN2_HI: f32 = 0.693_359_4;
     const LN2_LO: f32 = -2.121_944_4e-4;
-    let n = (y * std::f32::consts::LOG2_E).round();
+    let n = (y * std::f32::consts::LOG2_E).round_ties_even();
     let r = (y - n * LN2_HI) - n * LN2_LO;
     // Taylor series of exp(r) for |r| <= ln(2)/2.
     let p = 1.0 + r * (1.0 + r * (0.5 + r * (1.0 / 6.0 + r * (1.0 / 24.0 + r * (1.0 / 120.0 + r * (1.0 / 720.0))))));
-    p * f32::from_bits(((n as i32 + 127) as u32) << 23)
+    // 2^n from the bits of n + 127 written in the mantissa of 2^23 + (n + 127): the same as
+    // `(n as i32 + 127) << 23`, but a float-to-int cast would keep the loop from vectorising.
+    p * f32::from_bits((n + (8_388_608.0 + 127.0)).to_bits() << 23)
 }
 
-#[inline]
+/// Snaps `x` onto the nearest integer when within [`SNAP_PX`] of it. Ties (x.5) are never within
+/// reach, so rounding them to even is as good as away from zero, and is one instruction.
+#[inline(always)]
 fn snap(x: f64) -> f64 {
-    let r = x.round();
+    let r = x.round_ties_even();
     if (x - r).abs() < SNAP_PX {
         r
     } else {
         x
     }
-}
-
-/// A moved point is splatted only when it is finite and in front of the target camera.
-#[inline]
-fn is_in_front(x: &[f64; 3]) -> bool {
-    x[2] > MIN_Z && x.iter().all(|c| c.is_finite())
-}
-
-/// Where a band's points land: the largest clamped depth and the target rows reached.
-#[derive(Clone, Copy)]
-struct BandExtent {
-    z_max: f64,
-    rows: Option<(usize, usize)>,
-}
-
-/// Where a point lands in the target view, or `None` when none of its four pixels is inside.
-#[inline]
-fn landing(k: &Intrinsics, x: &[f64; 3], w: usize, h: usize) -> Option<(f64, f64)> {
-    let inv_z = 1.0 / x[2];
-    let qx = snap(k.fx * x[0] * inv_z + k.cx);
-    let qy = snap(k.fy * x[1] * inv_z + k.cy);
-    // This also rejects infinities before any cast.
-    (qx > -1.0 && qx < w as f64 && qy > -1.0 && qy < h as f64).then_some((qx, qy))
 }
 
 fn splat<const C: usize>(
@@ -210,159 +456,101 @@ fn splat<const C: usize>(
     value: impl Fn(usize) -> [f32; C] + Sync,
 ) -> Splatted<C> {
     let (w, h) = (depth.width(), depth.height());
-    let proj = Projector::new(w, k, t);
-    let d = depth.pixels();
-    let band_rows = |b: usize| b * BAND_ROWS..((b + 1) * BAND_ROWS).min(h);
+    let mut values = vec![[0f32; C]; w * h];
+    let mut depth_out = vec![0f32; w * h];
+    let mut known = vec![false; w * h];
+    if w * h > 0 {
+        assert!(w < i32::MAX as usize && h < i32::MAX as usize, "a {w}x{h} frame is too large to warp");
+        let proj = Projector::new(w, h, k, t);
+        let d = depth.pixels();
+        let chunks_per_row = w.div_ceil(CHUNK);
+        let chunk_pixels = |v: usize, c: usize| v * w + c * CHUNK..v * w + ((c + 1) * CHUNK).min(w);
 
-    // Pass 1: the largest (clamped) depth in front of the camera, over every point, and the
-    // target rows each band of source rows reaches.
-    let extents: Vec<BandExtent> = (0..h.div_ceil(BAND_ROWS))
-        .into_par_iter()
-        .map(|b| {
-            let mut e = BandExtent { z_max: 0.0, rows: None };
-            let mut points = vec![[0f64; 3]; w];
-            for v in band_rows(b) {
-                let depth_row = &d[v * w..(v + 1) * w];
-                proj.transform_row(v, depth_row, &mut points);
-                for (x, z) in points.iter().zip(depth_row) {
-                    if !is_valid_depth(z[0]) || !is_in_front(x) {
-                        continue;
-                    }
-                    e.z_max = e.z_max.max(x[2].min(MAX_WEIGHT_DEPTH));
-                    if let Some((_, qy)) = landing(k, x, w, h) {
-                        let y0 = qy.floor().max(0.0) as usize;
-                        let y1 = (qy.floor() + 1.0).min(h as f64 - 1.0) as usize;
-                        e.rows = Some(e.rows.map_or((y0, y1), |(a, b)| (a.min(y0), b.max(y1))));
+        // Pass 1: the largest clamped depth in front of the camera, over every point, and the
+        // target rows each chunk reaches.
+        let mut chunk_rows = vec![TargetRows::NONE; h * chunks_per_row];
+        let z_max = chunk_rows
+            .par_chunks_mut(chunks_per_row)
+            .enumerate()
+            .map(|(v, rows)| {
+                let mut z_max = 0f64;
+                for (c, rows) in rows.iter_mut().enumerate() {
+                    let s = proj.survey(v, c * CHUNK, &d[chunk_pixels(v, c)]);
+                    (z_max, *rows) = (z_max.max(s.z_max), s.rows);
+                }
+                z_max
+            })
+            .reduce(|| 0.0, f64::max);
+        let row_rows: Vec<TargetRows> =
+            chunk_rows.chunks(chunks_per_row).map(|c| c.iter().fold(TargetRows::NONE, |a, &b| a.union(b))).collect();
+        let weight_of_depth = DepthWeight::new(z_max);
+
+        // Pass 2, band by band of target rows. The bands are handed out from a queue to one
+        // worker per thread, so that each worker clears and warms one accumulator: a rayon split
+        // of its own would take one for every piece of work stolen.
+        let band_pixels = BAND_ROWS * w;
+        let bands =
+            values.chunks_mut(band_pixels).zip(depth_out.chunks_mut(band_pixels)).zip(known.chunks_mut(band_pixels));
+        let queue = Mutex::new(bands.enumerate());
+        let workers = rayon::current_num_threads().min(h.div_ceil(BAND_ROWS));
+        (0..workers).into_par_iter().for_each(|_| {
+            let mut acc = vec![Block::default(); (band_pixels + SINKS) * blocks_per_pixel(C)];
+            let mut splats = ChunkSplats::new();
+            loop {
+                // A statement of its own, so that the lock is released before the work.
+                let job = queue.lock().unwrap().next();
+                let Some((b, ((values, depth_out), known))) = job else { break };
+                let band = b * BAND_ROWS..((b + 1) * BAND_ROWS).min(h);
+                for v in (0..h).filter(|&v| row_rows[v].meets(&band)) {
+                    for c in (0..chunks_per_row).filter(|&c| chunk_rows[v * chunks_per_row + c].meets(&band)) {
+                        let pixels = chunk_pixels(v, c);
+                        proj.weigh(v, c * CHUNK, &d[pixels.clone()], &band, band_pixels, &weight_of_depth, &mut splats);
+                        accumulate(&splats, pixels, &mut acc, &value);
                     }
                 }
+                normalise(&mut acc, values, depth_out, known);
             }
-            e
-        })
-        .collect();
-    let z_max = extents.iter().map(|e| e.z_max).fold(0.0, f64::max);
-    let weight_of_depth = DepthWeight::new(z_max);
-
-    // Pass 2: splat straight into one frame-sized accumulator. Bands whose target rows overlap
-    // must not run at the same time, so they run in phases: band b in phase b % phases, with the
-    // fewest phases in which no two bands of a phase overlap. Each pixel then sums its splats in
-    // an order fixed by the input alone, whatever the number of threads.
-    let mut acc = vec![[0f32; C]; w * h];
-    let mut depth_acc = vec![0f32; w * h];
-    let mut weight = vec![0f32; w * h];
-    let phases = (2..extents.len().max(2)).find(|&p| phases_are_disjoint(&extents, p)).unwrap_or(extents.len().max(1));
-    for phase in 0..phases {
-        let mut jobs: Vec<(usize, (usize, usize))> = extents
-            .iter()
-            .enumerate()
-            .skip(phase)
-            .step_by(phases)
-            .filter_map(|(b, e)| e.rows.map(|r| (b, r)))
-            .collect();
-        jobs.sort_by_key(|&(_, (first, _))| first);
-        let ranges: Vec<(usize, usize)> = jobs.iter().map(|&(_, r)| r).collect();
-        let targets = carve_rows(&mut acc, w, &ranges)
-            .into_iter()
-            .zip(carve_rows(&mut depth_acc, w, &ranges))
-            .zip(carve_rows(&mut weight, w, &ranges))
-            .zip(&jobs)
-            .map(|(((acc, depth), weight), &(b, (first_row, _)))| (b, BandTarget { first_row, acc, depth, weight }))
-            .collect::<Vec<_>>();
-        targets.into_par_iter().for_each(|(b, target)| {
-            splat_band(band_rows(b), target, w, h, &proj, d, &weight_of_depth, &value);
         });
     }
-
-    // Normalise in place.
-    let known: Vec<bool> = weight.iter().map(|&x| x > 0.0).collect();
-    acc.par_iter_mut().zip(depth_acc.par_iter_mut()).zip(weight.par_iter()).for_each(|((a, z), &wt)| {
-        if wt > 0.0 {
-            let inv = 1.0 / wt;
-            *a = a.map(|x| x * inv);
-            *z *= inv;
-        }
-    });
-    Splatted { values: Image::from_pixels(w, h, acc), depth: Image::from_values(w, h, depth_acc), known }
+    Splatted { values: Image::from_pixels(w, h, values), depth: Image::from_values(w, h, depth_out), known }
 }
 
-/// Mutable slices of the rows `first..=last` of each range (sorted, disjoint) of a row-major buffer.
-fn carve_rows<'a, T>(mut buf: &'a mut [T], width: usize, ranges: &[(usize, usize)]) -> Vec<&'a mut [T]> {
-    let mut slices = Vec::with_capacity(ranges.len());
-    let mut consumed = 0;
-    for &(first, last) in ranges {
-        let (_, rest) = std::mem::take(&mut buf).split_at_mut((first - consumed) * width);
-        let (rows, rest) = rest.split_at_mut((last + 1 - first) * width);
-        slices.push(rows);
-        (buf, consumed) = (rest, last + 1);
-    }
-    slices
-}
-
-/// True when, taking every `phases`-th band, no two bands reach the same target row.
-fn phases_are_disjoint(extents: &[BandExtent], phases: usize) -> bool {
-    (0..phases).all(|phase| {
-        let mut ranges: Vec<(usize, usize)> =
-            extents.iter().skip(phase).step_by(phases).filter_map(|e| e.rows).collect();
-        ranges.sort_unstable();
-        ranges.windows(2).all(|r| r[0].1 < r[1].0)
-    })
-}
-
-/// The accumulator rows `first_row..` that one band splats into.
-struct BandTarget<'a, const C: usize> {
-    first_row: usize,
-    acc: &'a mut [[f32; C]],
-    depth: &'a mut [f32],
-    weight: &'a mut [f32],
-}
-
-#[allow(clippy::too_many_arguments)]
-fn splat_band<const C: usize>(
-    rows: std::ops::Range<usize>,
-    target: BandTarget<'_, C>,
-    w: usize,
-    h: usize,
-    proj: &Projector,
-    d: &[[f32; 1]],
-    weight_of_depth: &DepthWeight,
-    value: &(impl Fn(usize) -> [f32; C] + Sync),
+/// Pass 2, second half: adds the splats of the source pixels `pixels` to a band's accumulator
+/// `acc`, in source order. Without a branch: a splat not made adds to a sink instead.
+fn accumulate<const C: usize>(
+    splats: &ChunkSplats,
+    pixels: Range<usize>,
+    acc: &mut [Block],
+    value: &impl Fn(usize) -> [f32; C],
 ) {
-    let BandTarget { first_row, acc, depth: depth_acc, weight } = target;
-    let k = &proj.k;
-    // Row by row: transform and weigh every point in tight loops that vectorise, then splat.
-    let mut points = vec![[0f64; 3]; w];
-    let mut depth_weights = vec![0f32; w];
-    for v in rows {
-        let depth_row = &d[v * w..(v + 1) * w];
-        proj.transform_row(v, depth_row, &mut points);
-        for (wd, p) in depth_weights.iter_mut().zip(&points) {
-            *wd = weight_of_depth.at(p[2]);
+    let blocks = const { blocks_per_pixel(C) };
+    for (p, i) in pixels.enumerate() {
+        let (z, value) = (splats.z[p], value(i));
+        for b in 0..blocks {
+            let contribution: [f32; LANES] = std::array::from_fn(|l| lane(b * LANES + l, z, &value));
+            for c in 0..4 {
+                let (wt, target) = (splats.weight[c][p], splats.target[c][p] as usize);
+                for (a, x) in acc[target * blocks + b].0.iter_mut().zip(contribution) {
+                    *a += wt * x;
+                }
+            }
         }
-        for u in 0..w {
-            let (i, x) = (v * w + u, points[u]);
-            if !is_valid_depth(depth_row[u][0]) || !is_in_front(&x) {
-                continue;
-            }
-            let Some((qx, qy)) = landing(k, &x, w, h) else { continue };
-            let (fx0, fy0) = (qx.floor(), qy.floor());
-            let (ax, ay) = (qx - fx0, qy - fy0);
-            let bilinear = [(1.0 - ax) * (1.0 - ay), ax * (1.0 - ay), (1.0 - ax) * ay, ax * ay];
-            let wd = depth_weights[u];
-            let (val, z) = (value(i), x[2] as f32);
-            let (x0, y0) = (fx0 as i64, fy0 as i64);
-            for (corner, &b) in bilinear.iter().enumerate() {
-                let tx = x0 + (corner & 1) as i64;
-                let ty = y0 + (corner >> 1) as i64;
-                if b < MIN_BILINEAR_WEIGHT || tx < 0 || ty < 0 || tx >= w as i64 || ty >= h as i64 {
-                    continue;
-                }
-                let wt = b as f32 * wd;
-                let j = (ty as usize - first_row) * w + tx as usize;
-                weight[j] += wt;
-                depth_acc[j] += wt * z;
-                for (a, v) in acc[j].iter_mut().zip(val) {
-                    *a += wt * v;
-                }
-            }
+    }
+}
+
+/// Divides a band's accumulated values and depths by their weights into the outputs, marks the
+/// pixels that received any weight as known, and clears the accumulator for the next band.
+fn normalise<const C: usize>(acc: &mut [Block], values: &mut [[f32; C]], depth: &mut [f32], known: &mut [bool]) {
+    let blocks = const { blocks_per_pixel(C) };
+    let get = |cell: &[Block], k: usize| cell[k / LANES].0[k % LANES];
+    for (((cell, value), depth), known) in acc.chunks_exact_mut(blocks).zip(values).zip(depth).zip(known) {
+        let weight = get(cell, 0);
+        if weight > 0.0 {
+            let inv = 1.0 / weight;
+            *value = std::array::from_fn(|c| get(cell, c + 2) * inv);
+            *depth = get(cell, 1) * inv;
+            *known = true;
+            cell.fill(Block::default());
         }
     }
 }
@@ -533,5 +721,131 @@ mod tests {
         let (out, known) = splat_field(&field, &depth, &k(), &translation(-0.05, 0.0, 0.0));
         assert_eq!(out.get(3, 4), [4.0, -4.0]);
         assert!(!known[w - 1]);
+    }
+
+    /// The splat of SPEC §4 as a plain serial loop over the source pixels into one frame-sized
+    /// accumulator, with the same arithmetic as `splat`: every pixel sums its splats in source
+    /// order, so the two must agree to the bit.
+    fn serial_splat<const C: usize>(
+        field: &Image<C>,
+        depth: &DepthMap,
+        k: &Intrinsics,
+        t: &DMat4,
+    ) -> (Image<C>, DepthMap, Vec<bool>) {
+        let (w, h) = (depth.width(), depth.height());
+        let proj = Projector::new(w, h, k, t);
+        let col = |u: usize| [0, 1, 2].map(|i| proj.col_terms[i][u]);
+        let z_max = (0..w * h)
+            .map(|i| proj.transform(col(i % w), &proj.row_term(i / w), depth.pixels()[i][0]))
+            .filter(|(x, z_in_front)| in_front(x, *z_in_front))
+            .map(|(x, _)| x[2].min(MAX_WEIGHT_DEPTH))
+            .fold(0.0, f64::max);
+        let points: Vec<(usize, Projection)> =
+            (0..w * h).map(|i| (i, proj.project(col(i % w), &proj.row_term(i / w), depth.pixels()[i][0]))).collect();
+        let weight_of_depth = DepthWeight::new(z_max);
+        let (mut acc, mut depth_acc, mut weight) = (vec![[0f32; C]; w * h], vec![0f32; w * h], vec![0f32; w * h]);
+        for (i, q) in points.into_iter().filter(|(_, q)| q.lands) {
+            let (x0, y0) = (q.qx.floor(), q.qy.floor());
+            let (ax, ay) = (q.qx - x0, q.qy - y0);
+            let bilinear = [(1.0 - ax) * (1.0 - ay), ax * (1.0 - ay), (1.0 - ax) * ay, ax * ay];
+            for (corner, b) in bilinear.into_iter().enumerate() {
+                let (tx, ty) = (x0 as i64 + (corner & 1) as i64, y0 as i64 + (corner >> 1) as i64);
+                if b < MIN_BILINEAR_WEIGHT || tx < 0 || ty < 0 || tx >= w as i64 || ty >= h as i64 {
+                    continue;
+                }
+                let wt = b as f32 * weight_of_depth.at(q.z);
+                let j = ty as usize * w + tx as usize;
+                weight[j] += wt;
+                depth_acc[j] += wt * q.z as f32;
+                for (a, v) in acc[j].iter_mut().zip(field.pixels()[i]) {
+                    *a += wt * v;
+                }
+            }
+        }
+        for j in 0..w * h {
+            if weight[j] > 0.0 {
+                let inv = 1.0 / weight[j];
+                acc[j] = acc[j].map(|x| x * inv);
+                depth_acc[j] *= inv;
+            }
+        }
+        let known = weight.iter().map(|&x| x > 0.0).collect();
+        (Image::from_pixels(w, h, acc), Image::from_values(w, h, depth_acc), known)
+    }
+
+    /// Runs `f` on a pool of `threads` threads.
+    fn with_threads<T: Send>(threads: usize, f: impl FnOnce() -> T + Send) -> T {
+        rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap().install(f)
+    }
+
+    /// Poses from none to wild: rolls and tilts make source rows reach many bands, big moves send
+    /// most points out of the frame or behind the camera.
+    fn poses() -> Vec<DMat4> {
+        vec![
+            DMat4::IDENTITY,
+            DMat4::from_rotation_y(0.01) * translation(0.05, 0.02, -0.03),
+            translation(-0.1, 0.0, 0.0),
+            DMat4::from_rotation_z(0.5) * translation(0.1, -0.2, 0.3),
+            DMat4::from_rotation_z(std::f64::consts::FRAC_PI_2),
+            DMat4::from_rotation_x(0.15) * translation(0.0, 0.05, 0.2),
+            translation(0.0, 0.4, 0.0),
+            translation(0.0, 3.0, 0.0),
+            translation(0.0, 0.0, 2.5),
+            translation(0.0, 0.0, -1.5),
+            DMat4::from_rotation_y(std::f64::consts::PI),
+        ]
+    }
+
+    /// A wall with boxes in front of it and holes in its depth.
+    fn boxes_depth(w: usize, h: usize) -> DepthMap {
+        Image::from_fn(w, h, |u, v| match (u * 7 + v * 3) % 53 {
+            0 => [f32::NAN],
+            1 => [0.0],
+            _ if (u / 9 + v / 5) % 3 == 0 => [1.0 + (u % 4) as f32 * 0.1],
+            _ => [6.0 + v as f32 * 0.01],
+        })
+    }
+
+    #[test]
+    fn bands_and_chunks_give_the_bits_of_a_serial_splat() {
+        // Wider than a chunk and taller than a band, with partial ones at the end; and degenerate.
+        for (w, h) in [(CHUNK * 2 + 13, BAND_ROWS * 3 + 5), (70, 41), (1, 1), (3, 2), (1, 9), (9, 1), (0, 0), (0, 3)] {
+            let img = textured(w, h);
+            let depth = boxes_depth(w, h);
+            let k = Intrinsics::new(w as f64, w as f64, w as f64 / 2.0 - 0.5, h as f64 / 2.0 - 0.5);
+            for t in poses() {
+                let (image, depth_out, known) = serial_splat(&img, &depth, &k, &t);
+                for threads in [1, 2, 3] {
+                    let out = with_threads(threads, || warp_forward(&img, &depth, &k, &t));
+                    assert!(out.image == image && out.depth == depth_out, "{w}x{h}, {threads} threads, {t:?}");
+                    assert_eq!(out.holes.known(), known);
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn splat_field_of_many_channels_gives_the_bits_of_a_serial_splat() {
+        // Nine channels take two accumulator blocks a pixel.
+        let (w, h) = (150, 40);
+        let field = Image::from_fn(w, h, |u, v| std::array::from_fn::<f32, 9, _>(|c| (u * (c + 1) + v) as f32 * 0.01));
+        let depth = boxes_depth(w, h);
+        for t in poses() {
+            let (values, _, known) = serial_splat(&field, &depth, &k(), &t);
+            assert_eq!(splat_field(&field, &depth, &k(), &t), (values, known));
+        }
+    }
+
+    #[test]
+    fn bit_tricks_match_the_plain_operations() {
+        for x in [0.0, -0.0, 1.0, -1.0, 1919.0, -2.0e9, 3.0e12, -(2f64.powi(50))] {
+            assert_eq!(integer_to_i64(x), x as i64);
+        }
+        for xs in
+            [vec![], vec![-3.0], vec![1.0, 5.0, -2.0, 4.0, 0.5], (0..37).map(|i| ((i * 17) % 23) as f64).collect()]
+        {
+            assert_eq!(largest(&xs), xs.iter().copied().fold(f64::NEG_INFINITY, f64::max));
+        }
+        assert_eq!((select(true, 2.0, f64::NAN), select(false, f64::NAN, -0.0).to_bits()), (2.0, (-0f64).to_bits()));
     }
 }

@@ -55,6 +55,11 @@ pub enum DataError {
     #[error("{}: {problem}", path.display())]
     Invalid { path: PathBuf, problem: String },
 
+    /// Training samples that cannot be made (a crop larger than the frames, clips without
+    /// disocclusions, ...); `origin` names the clip: its folder, or a generated clip's description.
+    #[error("{}: {problem}", origin.display())]
+    Sampling { origin: PathBuf, problem: String },
+
     /// A folder that holds no clip at any depth.
     #[error("{}: no clip found (a clip is a folder holding TransformationMatrices.csv)", path.display())]
     NoClip { path: PathBuf },
@@ -96,6 +101,7 @@ impl DataError {
             | Self::SizeMismatch { path, .. }
             | Self::Frames { path, .. }
             | Self::Invalid { path, .. }
+            | Self::Sampling { origin: path, .. }
             | Self::NoClip { path } => path,
         }
     }

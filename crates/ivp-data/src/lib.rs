@@ -7,6 +7,8 @@
 //! - [`find_clips`] lists the clips of a dataset folder.
 //! - [`read_rgb`], [`write_rgb_png`], [`write_gray_png`], [`read_depth_exr`], [`write_depth_exr`]:
 //!   single files; all writes are atomic (temporary file + rename).
+//! - [`samples`]: training samples and batches, made deterministically in the background.
+//! - [`scene`]: procedural scenes rendered on the fly ([`render_clip`], [`generate_dataset`]).
 //!
 //! Every error is a [`DataError`] whose message names the file and the problem.
 
@@ -16,6 +18,8 @@ mod discover;
 mod error;
 mod frames;
 mod io;
+pub mod samples;
+pub mod scene;
 mod scenenet;
 mod write;
 
@@ -30,5 +34,7 @@ pub use io::{
     pick_depth_channel, read_depth_exr, read_rgb, write_depth_exr, write_gray_png, write_rgb_png, DEPTH_CHANNELS,
     WRITTEN_DEPTH_CHANNEL,
 };
+pub use samples::{Batch, Sample, SampleConfig, SampleGenerator, SampleStream, StreamOptions};
+pub use scene::{generate_dataset, render_clip, Scene, SceneParams, SyntheticClip};
 pub use scenenet::{ray_mm_to_planar, read_scenenet_depth, SCENENET_FRAME_STEP};
 pub use write::write_clip;

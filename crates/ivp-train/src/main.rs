@@ -45,6 +45,8 @@ enum Command {
     Check(CheckArgs),
     /// Render procedural clips (rooms, objects, head-mounted-display camera paths) to disk.
     Generate(GenerateArgs),
+    /// Draw one training sample as a labelled sheet (frames, warps, holes, prior, depth).
+    ShowSample(ShowSampleArgs),
 }
 
 #[derive(Args)]
@@ -119,6 +121,28 @@ struct GenerateArgs {
 }
 
 #[derive(Args)]
+struct ShowSampleArgs {
+    /// Seed of the sample stream (the same seed, step and index give the same sample).
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// Training step whose batch the sample belongs to.
+    #[arg(long, default_value_t = 0)]
+    step: u64,
+    /// Index of the sample in its batch.
+    #[arg(long, default_value_t = 0)]
+    index: usize,
+    /// Side of the square crop.
+    #[arg(long, default_value_t = 256)]
+    crop: usize,
+    /// Draw from the clips of this dataset folder instead of generated scenes.
+    #[arg(long)]
+    data: Option<PathBuf>,
+    /// The PNG to write.
+    #[arg(long)]
+    out: PathBuf,
+}
+
+#[derive(Args)]
 struct CheckArgs {
     /// The clip folder to check.
     #[arg(long)]
@@ -138,6 +162,7 @@ fn main() -> Result<()> {
         Command::Eval(args) => run_eval(args, progress),
         Command::Check(args) => run_check(args),
         Command::Generate(args) => run_generate(args, progress),
+        Command::ShowSample(args) => run_show_sample(args),
     }
 }
 
@@ -298,6 +323,53 @@ fn run_generate(args: GenerateArgs, progress: bool) -> Result<()> {
         args.frames,
         args.width,
         args.height,
+        args.out.display()
+    );
+    Ok(())
+}
+
+fn run_show_sample(args: ShowSampleArgs) -> Result<()> {
+    use ivp_data::samples::{ClipSource, DatasetSource, SampleConfig, SampleGenerator, Split, SyntheticSource};
+    use ivp_train::sheet::{depth_to_rgb, gray_to_rgb, vectors_to_rgb, Sheet};
+
+    let source: std::sync::Arc<dyn ClipSource> = match &args.data {
+        Some(dir) => std::sync::Arc::new(DatasetSource::open(dir)?),
+        None => std::sync::Arc::new(SyntheticSource::for_crops_of_256()),
+    };
+    let config = SampleConfig { seed: args.seed, crop: args.crop, batch_size: args.index + 1, ..Default::default() };
+    let generator = SampleGenerator::new(source, config, Split::Train)?;
+    let sample = generator.sample(args.step, args.index)?;
+
+    let size = sample.size();
+    // 255 on disocclusions, 128 on new regions (holes of the warp that are not disocclusions).
+    let holes: Vec<u8> = sample
+        .mask
+        .as_flat()
+        .iter()
+        .zip(sample.warped_depth.as_flat())
+        .map(|(&m, &z)| if m > 0.5 { 255 } else if z > 0.0 { 0 } else { 128 })
+        .collect();
+    let o = &sample.origin;
+    let (n2, n, t) = (o.frames.before_last, o.frames.last, o.frames.target);
+    let mut sheet = Sheet::new(4);
+    sheet
+        .add(format!("f{n2}->{n} warped"), sample.last_warped.clone())
+        .add(format!("f{n} (last)"), sample.last.clone())
+        .add(format!("f{n}->{t} warped"), sample.warped.clone())
+        .add(format!("f{t} truth"), sample.truth.clone())
+        .add("holes", gray_to_rgb(size, size, &holes))
+        .add("prior", vectors_to_rgb(&sample.prior, None))
+        .add(format!("depth {t}"), depth_to_rgb(&sample.warped_depth));
+    ivp_data::write_rgb_png(&args.out, &sheet.render())?;
+    println!(
+        "sample {} of step {} (seed {}): {}, {:?}, frames {n2}, {n} -> {t}, crop at ({}, {}) -> {}",
+        args.index,
+        args.step,
+        args.seed,
+        o.clip_name.display(),
+        o.direction,
+        o.window.left,
+        o.window.top,
         args.out.display()
     );
     Ok(())

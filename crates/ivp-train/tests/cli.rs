@@ -191,3 +191,20 @@ fn generate_is_byte_identical_for_a_seed_and_its_clips_check_out() {
     let stdout = ok(&["check", "--clip", s(&a.join("clip_0001"))]);
     assert!(stdout.contains("OK"), "{stdout}");
 }
+
+#[test]
+fn show_sample_draws_a_sheet_deterministically() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (a, b) = (tmp.path().join("a.png"), tmp.path().join("b.png"));
+    let data = blender_dev();
+    for out in [&a, &b] {
+        let stdout = ok(&["show-sample", "--seed", "5", "--crop", "64", "--data", s(&data), "--out", s(out)]);
+        assert!(stdout.contains("clip_"), "{stdout}");
+    }
+    let sheet = read_rgb(&a).unwrap();
+    assert!(sheet.width() > 4 * 64 && sheet.height() > 2 * 64);
+    assert_eq!(std::fs::read(&a).unwrap(), std::fs::read(&b).unwrap());
+    let synthetic = tmp.path().join("synthetic.png");
+    ok(&["show-sample", "--seed", "1", "--crop", "32", "--out", s(&synthetic)]);
+    assert!(synthetic.is_file());
+}
