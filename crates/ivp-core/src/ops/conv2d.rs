@@ -2,18 +2,28 @@
 //!
 //! candle's own CPU convolution spends most of its time in a scalar im2col loop and computes the
 //! input gradient with a `conv_transpose2d` that never calls gemm (SPEC §8). Here all three products
-//! (output, input gradient, weight gradient) are gemm calls on *tiles*: a range of output pixels of
-//! one image whose im2col matrix (`taps x pixels`, taps = Cin k k) is about [`TILE_BYTES`]. A
-//! full-frame im2col buffer is never built (64 -> 64 channels 3x3 at 1080x1920 would need 4.8 GB).
+//! are gemm calls on *tiles*: a range of output pixels of one image (at least `MIN_TILE_PX`) and a
+//! block of input channels, whose im2col matrix (`cb k k` rows by `px` pixels) is about
+//! `TILE_BYTES` and stays in L2. A full-frame im2col buffer is never built (64 -> 64 channels 3x3
+//! at 1080x1920 would need 4.8 GB).
+//! - Forward: `out_tile += w_block im2col_tile`, summed over the channel blocks; the bias is the
+//!   initial value of the output (a `CustomOp3`), so it costs no extra pass.
+//! - Input gradient: for stride 1 with Cout <= Cin (the decoder, the depth head), a forward
+//!   convolution of the output gradient with the flipped kernel; otherwise (stride 2, or Cout > Cin
+//!   as in e1) `col2im(w_block^T grad_tile)`, a scatter-add.
+//! - Weight gradient: `dw_block += grad_tile im2col_tile^T`; for narrow layers in sub-blocks of at
+//!   most 256 outputs, for which gemm uses its dot-product kernels (see `weight_grad`).
 //!
-//! Parallelism: tiles are spread over the current rayon pool and each gemm runs single-threaded.
-//! Every output value is computed by the same sequence of floating-point operations whatever the
-//! number of threads, so results are bit-identical for any pool size:
+//! Parallelism: tiles are spread over the current rayon pool and each gemm runs single-threaded
+//! (measured about twice as fast as a serial tile loop with gemm's own threading, whose im2col
+//! copies then run on one thread). Every output value is computed by the same sequence of
+//! floating-point operations whatever the number of threads, so results are bit-identical for any
+//! pool size:
 //! - forward: each output value belongs to exactly one tile;
-//! - input gradient: tiles scatter-add into overlapping input rows, so they run in two phases (even
-//!   tiles, then odd tiles of each image); tiles of one phase touch disjoint input rows;
-//! - weight gradient: the tiles are cut into a fixed number of contiguous chunks (independent of the
-//!   thread count), each accumulates its own partial sum in tile order, and the partials are added in
+//! - col2im: tiles scatter-add into overlapping input rows, so they run in two phases (even tiles,
+//!   then odd tiles of each image); tiles of one phase touch disjoint input rows;
+//! - weight gradient: the work items (channel block, chunk of consecutive tiles) are fixed by the
+//!   shapes alone, each accumulates its partial sum in tile order, and the partials are added in
 //!   chunk order.
 
 use std::cell::RefCell;
