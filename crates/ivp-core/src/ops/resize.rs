@@ -1,0 +1,364 @@
+//! Resizing of (B, C, H, W) maps as candle custom ops with correct backward passes (SPEC §6.1, §8).
+//!
+//! - [`upsample_nearest2x_to`]: nearest x2 upsampling cropped to the skip connection's size, as in
+//!   the U-Net decoder. candle's own `upsample_nearest2d` backward overwrites instead of adding the
+//!   gradients of the four copies of a pixel; here they are summed.
+//! - [`upsample_bilinear_to`]: bilinear resizing with half-pixel centres (PyTorch's
+//!   `align_corners=False`), as in the depth head; candle's `upsample_bilinear2d` has no backward.
+//!
+//! Determinism: forward passes are parallel over output rows (each written by one thread); the
+//! nearest backward over input rows (each a fixed sum); the bilinear backward, a scatter-add, over
+//! (image, channel) planes, each accumulated sequentially in pixel order. Results are bit-identical
+//! for any number of rayon threads.
+
+use candle_core::{bail, CpuStorage, CustomOp1, DType, Layout, Result, Shape, Tensor};
+use rayon::prelude::*;
+
+/// Nearest x2 upsampling of `x` (B, C, H, W), cropped to (B, C, height, width): output pixel
+/// (ox, oy) is input pixel (ox / 2, oy / 2). Needs `height <= 2 H` and `width <= 2 W`. Equals
+/// PyTorch's `F.interpolate(x, size=(height, width), mode="nearest")` for height in {2H - 1, 2H} and
+/// width in {2W - 1, 2W}. f32 on the CPU; the gradient adds up the copies of each input pixel.
+pub fn upsample_nearest2x_to(x: &Tensor, height: usize, width: usize) -> Result<Tensor> {
+    check(x, "upsample_nearest2x_to")?;
+    let (_, _, h, w) = x.dims4()?;
+    if height > 2 * h || width > 2 * w {
+        bail!("upsample_nearest2x_to: {:?} to {height}x{width}, more than twice the size", x.dims());
+    }
+    x.contiguous()?.apply_op1(Nearest2x { height, width })
+}
+
+/// Bilinear resizing of `x` (B, C, H, W) to (B, C, height, width) with half-pixel centres: output
+/// pixel i of an axis reads input position `(i + 0.5) in / out - 0.5`, clamped at 0 below, between
+/// the two neighbouring pixels (the last pixel repeats at the far edge). Equals PyTorch's
+/// `F.interpolate(x, size=(height, width), mode="bilinear", align_corners=False)`. f32 on the CPU,
+/// any sizes (up or down, though downsizing does not average like an area filter).
+pub fn upsample_bilinear_to(x: &Tensor, height: usize, width: usize) -> Result<Tensor> {
+    check(x, "upsample_bilinear_to")?;
+    let (_, _, h, w) = x.dims4()?;
+    if (h == 0 || w == 0) && height * width > 0 {
+        bail!("upsample_bilinear_to: {:?} to {height}x{width}, empty input", x.dims());
+    }
+    x.contiguous()?.apply_op1(Bilinear { height, width })
+}
+
+fn check(x: &Tensor, name: &str) -> Result<()> {
+    if x.dtype() != DType::F32 || !x.device().is_cpu() {
+        bail!("{name}: an f32 tensor on the CPU expected, got {:?} on {:?}", x.dtype(), x.device());
+    }
+    Ok(())
+}
+
+/// The contiguous f32 values of a tensor's storage.
+fn values<'a>(s: &'a CpuStorage, l: &Layout) -> Result<&'a [f32]> {
+    match l.contiguous_offsets() {
+        Some((a, b)) => Ok(&s.as_slice::<f32>()?[a..b]),
+        None => bail!("resize: contiguous tensors expected"),
+    }
+}
+
+/// The forward nearest op.
+#[derive(Clone, Copy, Debug)]
+struct Nearest2x {
+    height: usize,
+    width: usize,
+}
+
+impl CustomOp1 for Nearest2x {
+    fn name(&self) -> &'static str {
+        "ivp-upsample-nearest2x"
+    }
+
+    fn cpu_fwd(&self, s: &CpuStorage, l: &Layout) -> Result<(CpuStorage, Shape)> {
+        let (batch, c, h, w) = l.shape().dims4()?;
+        let (height, width) = (self.height, self.width);
+        let x = values(s, l)?;
+        let mut out = vec![0f32; batch * c * height * width];
+        if width > 0 {
+            // Output row r is row oy = r % height of plane r / height.
+            out.par_chunks_mut(width).enumerate().for_each(|(r, row)| {
+                let (plane, oy) = (r / height, r % height);
+                let src = &x[(plane * h + oy / 2) * w..][..w];
+                row.iter_mut().enumerate().for_each(|(ox, o)| *o = src[ox / 2]);
+            });
+        }
+        Ok((CpuStorage::F32(out), Shape::from((batch, c, height, width))))
+    }
+
+    fn bwd(&self, x: &Tensor, _res: &Tensor, grad: &Tensor) -> Result<Option<Tensor>> {
+        let (_, _, h, w) = x.dims4()?;
+        Ok(Some(grad.contiguous()?.apply_op1_no_bwd(&Nearest2xGrad { h, w })?))
+    }
+}
+
+/// The gradient of [`Nearest2x`] on the output gradient (B, C, height, width): (B, C, H, W), each
+/// input pixel the sum of the gradients of its (up to four) copies.
+#[derive(Clone, Copy, Debug)]
+struct Nearest2xGrad {
+    h: usize,
+    w: usize,
+}
+
+impl CustomOp1 for Nearest2xGrad {
+    fn name(&self) -> &'static str {
+        "ivp-upsample-nearest2x-grad"
+    }
+
+    fn cpu_fwd(&self, s: &CpuStorage, l: &Layout) -> Result<(CpuStorage, Shape)> {
+        let (batch, c, height, width) = l.shape().dims4()?;
+        let (h, w) = (self.h, self.w);
+        if height > 2 * h || width > 2 * w {
+            bail!("upsample_nearest2x_to gradient: {:?} for a {h}x{w} input", l.dims());
+        }
+        let grad = values(s, l)?;
+        let mut dx = vec![0f32; batch * c * h * w];
+        if w > 0 {
+            // Input row r is row iy = r % h of plane r / h; it collects output rows 2 iy and 2 iy + 1.
+            dx.par_chunks_mut(w).enumerate().for_each(|(r, row)| {
+                let (plane, iy) = (r / h, r % h);
+                for oy in (2 * iy..2 * iy + 2).filter(|&oy| oy < height) {
+                    let src = &grad[(plane * height + oy) * width..][..width];
+                    for (ox, g) in src.iter().enumerate() {
+                        row[ox / 2] += g;
+                    }
+                }
+            });
+        }
+        Ok((CpuStorage::F32(dx), Shape::from((batch, c, h, w))))
+    }
+}
+
+/// How output pixels of one axis read the input: (i0, i1, weight of i0, weight of i1), as in
+/// PyTorch's `upsample_bilinear2d` with `align_corners=False`.
+fn bilinear_taps(n_in: usize, n_out: usize) -> Vec<(usize, usize, f32, f32)> {
+    let scale = n_in as f32 / n_out as f32;
+    (0..n_out)
+        .map(|i| {
+            let src = (scale * (i as f32 + 0.5) - 0.5).max(0.0);
+            let i0 = (src as usize).min(n_in - 1);
+            let i1 = if i0 < n_in - 1 { i0 + 1 } else { i0 };
+            let l1 = src - i0 as f32;
+            (i0, i1, 1.0 - l1, l1)
+        })
+        .collect()
+}
+
+/// The forward bilinear op.
+#[derive(Clone, Copy, Debug)]
+struct Bilinear {
+    height: usize,
+    width: usize,
+}
+
+impl CustomOp1 for Bilinear {
+    fn name(&self) -> &'static str {
+        "ivp-upsample-bilinear"
+    }
+
+    fn cpu_fwd(&self, s: &CpuStorage, l: &Layout) -> Result<(CpuStorage, Shape)> {
+        let (batch, c, h, w) = l.shape().dims4()?;
+        let (height, width) = (self.height, self.width);
+        let x = values(s, l)?;
+        let mut out = vec![0f32; batch * c * height * width];
+        if height * width > 0 {
+            let (ty, tx) = (bilinear_taps(h, height), bilinear_taps(w, width));
+            out.par_chunks_mut(width).enumerate().for_each(|(r, row)| {
+                let (plane, oy) = (r / height, r % height);
+                let (y0, y1, ly0, ly1) = ty[oy];
+                let r0 = &x[(plane * h + y0) * w..][..w];
+                let r1 = &x[(plane * h + y1) * w..][..w];
+                for (o, &(x0, x1, lx0, lx1)) in row.iter_mut().zip(&tx) {
+                    *o = ly0 * (lx0 * r0[x0] + lx1 * r0[x1]) + ly1 * (lx0 * r1[x0] + lx1 * r1[x1]);
+                }
+            });
+        }
+        Ok((CpuStorage::F32(out), Shape::from((batch, c, height, width))))
+    }
+
+    fn bwd(&self, x: &Tensor, _res: &Tensor, grad: &Tensor) -> Result<Option<Tensor>> {
+        let (_, _, h, w) = x.dims4()?;
+        Ok(Some(grad.contiguous()?.apply_op1_no_bwd(&BilinearGrad { h, w })?))
+    }
+}
+
+/// The gradient of [`Bilinear`] on the output gradient (B, C, height, width): (B, C, H, W), the
+/// scatter-add of each output gradient to its four input pixels.
+#[derive(Clone, Copy, Debug)]
+struct BilinearGrad {
+    h: usize,
+    w: usize,
+}
+
+impl CustomOp1 for BilinearGrad {
+    fn name(&self) -> &'static str {
+        "ivp-upsample-bilinear-grad"
+    }
+
+    fn cpu_fwd(&self, s: &CpuStorage, l: &Layout) -> Result<(CpuStorage, Shape)> {
+        let (batch, c, height, width) = l.shape().dims4()?;
+        let (h, w) = (self.h, self.w);
+        let grad = values(s, l)?;
+        let mut dx = vec![0f32; batch * c * h * w];
+        if h * w > 0 && height * width > 0 {
+            let (ty, tx) = (bilinear_taps(h, height), bilinear_taps(w, width));
+            // Each plane is accumulated by one thread in pixel order: deterministic.
+            dx.par_chunks_mut(h * w).enumerate().for_each(|(plane, dst)| {
+                let gp = &grad[plane * height * width..][..height * width];
+                for (oy, &(y0, y1, ly0, ly1)) in ty.iter().enumerate() {
+                    for (ox, &(x0, x1, lx0, lx1)) in tx.iter().enumerate() {
+                        let g = gp[oy * width + ox];
+                        dst[y0 * w + x0] += ly0 * lx0 * g;
+                        dst[y0 * w + x1] += ly0 * lx1 * g;
+                        dst[y1 * w + x0] += ly1 * lx0 * g;
+                        dst[y1 * w + x1] += ly1 * lx1 * g;
+                    }
+                }
+            });
+        }
+        Ok((CpuStorage::F32(dx), Shape::from((batch, c, h, w))))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use candle_core::{Device, Var};
+
+    /// Deterministic values in [-1, 1) (candle cannot seed its CPU generator).
+    fn random(shape: &[usize], seed: u64) -> Tensor {
+        let mut s = seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1;
+        let n = shape.iter().product();
+        let v: Vec<f32> = (0..n)
+            .map(|_| {
+                s ^= s << 13;
+                s ^= s >> 7;
+                s ^= s << 17;
+                (s >> 40) as f32 / (1u64 << 23) as f32 - 1.0
+            })
+            .collect();
+        Tensor::from_vec(v, shape, &Device::Cpu).unwrap()
+    }
+
+    fn flat(t: &Tensor) -> Vec<f32> {
+        t.flatten_all().unwrap().to_vec1().unwrap()
+    }
+
+    fn tensor(v: Vec<f32>, shape: &[usize]) -> Tensor {
+        Tensor::from_vec(v, shape, &Device::Cpu).unwrap()
+    }
+
+    #[test]
+    fn nearest_matches_candle_and_crops() {
+        for (i, (b, c, h, w)) in [(2, 3, 5, 7), (1, 1, 1, 1), (1, 2, 4, 3)].into_iter().enumerate() {
+            let x = random(&[b, c, h, w], i as u64);
+            let full = x.upsample_nearest2d(2 * h, 2 * w).unwrap();
+            for (height, width) in [(2 * h, 2 * w), (2 * h - 1, 2 * w), (2 * h, 2 * w - 1), (2 * h - 1, 2 * w - 1)] {
+                let got = upsample_nearest2x_to(&x, height, width).unwrap();
+                let want = full.narrow(2, 0, height).unwrap().narrow(3, 0, width).unwrap();
+                assert_eq!(got.dims(), want.dims());
+                assert_eq!(flat(&got), flat(&want), "{:?} to {height}x{width}", x.dims());
+            }
+        }
+        let x = tensor(vec![1., 2., 3., 4.], &[1, 1, 2, 2]);
+        let got = flat(&upsample_nearest2x_to(&x, 3, 3).unwrap());
+        assert_eq!(got, vec![1., 1., 2., 1., 1., 2., 3., 3., 4.]);
+        assert!(upsample_nearest2x_to(&x, 5, 4).is_err());
+    }
+
+    #[test]
+    fn nearest_gradient_adds_the_copies() {
+        let x = Var::from_tensor(&random(&[1, 1, 2, 3], 1)).unwrap();
+        let g = upsample_nearest2x_to(&x, 3, 5).unwrap().sum_all().unwrap().backward().unwrap();
+        // Rows: 2 copies, then 1 (cropped); columns: 2, 2, then 1 (cropped).
+        assert_eq!(flat(g.get(&x).unwrap()), vec![4., 4., 2., 2., 2., 1.]);
+    }
+
+    #[test]
+    fn bilinear_hand_computed() {
+        // [0, 1] to 4: sources -0.25 (clamped to 0), 0.25, 0.75, 1.25 (last pixel repeated).
+        let x = tensor(vec![0., 1., 2., 3.], &[1, 1, 2, 2]);
+        let got = flat(&upsample_bilinear_to(&x, 4, 4).unwrap());
+        let axis = [0.0, 0.25, 0.75, 1.0];
+        let want: Vec<f32> = (0..16).map(|i| axis[i % 4] + 2.0 * axis[i / 4]).collect();
+        assert_eq!(got, want);
+        // Odd sizes, 3 to 5 columns: sources -0.2 (0), 0.4, 1.0, 1.6, 2.2 (the last pixel).
+        let x = tensor(vec![0., 10., 20.], &[1, 1, 1, 3]);
+        let got = flat(&upsample_bilinear_to(&x, 1, 5).unwrap());
+        for (g, w) in got.iter().zip([0., 4., 10., 16., 20.]) {
+            assert!((g - w).abs() < 1e-5, "{got:?}");
+        }
+        // The same size is a copy.
+        let x = random(&[2, 3, 5, 7], 3);
+        assert_eq!(flat(&upsample_bilinear_to(&x, 5, 7).unwrap()), flat(&x));
+    }
+
+    /// Checks the gradient of L = sum(f(x) r) against central differences (f is linear: exact up to
+    /// rounding).
+    fn check_gradient(f: impl Fn(&Tensor) -> Tensor, shape: &[usize], seed: u64) {
+        let x = Var::from_tensor(&random(shape, seed)).unwrap();
+        let y = f(&x);
+        let r = random(y.dims(), seed + 1);
+        let rv = flat(&r);
+        let analytic = flat((&y * &r).unwrap().sum_all().unwrap().backward().unwrap().get(&x).unwrap());
+        let loss = |x: &Tensor| -> f64 { flat(&f(x)).iter().zip(&rv).map(|(a, b)| *a as f64 * *b as f64).sum() };
+        let base = flat(&x);
+        let eps = 0.5f32;
+        for (i, &a) in analytic.iter().enumerate() {
+            let at = |d: f32| {
+                let mut v = base.clone();
+                v[i] += d;
+                loss(&tensor(v, shape))
+            };
+            let fd = (at(eps) - at(-eps)) / (2.0 * eps as f64);
+            assert!((fd - a as f64).abs() < 1e-3 * (1.0 + fd.abs()), "{shape:?} [{i}]: {a} vs {fd}");
+        }
+    }
+
+    #[test]
+    fn gradients_match_finite_differences() {
+        let shape = [2, 3, 5, 7];
+        for (height, width) in [(10, 14), (9, 13), (10, 13), (9, 14)] {
+            check_gradient(|x| upsample_nearest2x_to(x, height, width).unwrap(), &shape, 1);
+        }
+        for (height, width) in [(10, 14), (9, 13), (11, 8), (3, 4), (5, 7), (1, 1)] {
+            check_gradient(|x| upsample_bilinear_to(x, height, width).unwrap(), &shape, 2);
+        }
+    }
+
+    #[test]
+    fn results_do_not_depend_on_the_thread_count() {
+        let run = |threads: usize| -> Vec<Vec<u32>> {
+            let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+            pool.install(|| {
+                let x = Var::from_tensor(&random(&[3, 4, 17, 13], 1)).unwrap();
+                let a = upsample_nearest2x_to(&x, 33, 26).unwrap();
+                let b = upsample_bilinear_to(&x, 31, 27).unwrap();
+                let l = ((&a * random(a.dims(), 2)).unwrap().sum_all().unwrap()
+                    + (&b * random(b.dims(), 3)).unwrap().sum_all().unwrap())
+                .unwrap();
+                let g = l.backward().unwrap();
+                let bits = |t: &Tensor| flat(t).iter().map(|v| v.to_bits()).collect();
+                vec![bits(&a), bits(&b), bits(g.get(&x).unwrap())]
+            })
+        };
+        let one = run(1);
+        for threads in [2, 3] {
+            assert!(one == run(threads), "1 vs {threads} threads");
+        }
+    }
+
+    #[test]
+    fn nearest_gradient_matches_the_broadcast_reference() {
+        // SPEC §8's correct formulation: reshape, broadcast_as, reshape, then crop.
+        let (b, c, h, w) = (2, 3, 5, 4);
+        let x = Var::from_tensor(&random(&[b, c, h, w], 7)).unwrap();
+        let up = x.reshape((b, c, h, 1, w, 1)).unwrap().broadcast_as((b, c, h, 2, w, 2)).unwrap();
+        let want = up.reshape((b, c, 2 * h, 2 * w)).unwrap().narrow(2, 0, 9).unwrap().narrow(3, 0, 7).unwrap();
+        let r = random(want.dims(), 8);
+        let gw = (&want * &r).unwrap().sum_all().unwrap().backward().unwrap();
+        let got = upsample_nearest2x_to(&x, 9, 7).unwrap();
+        assert_eq!(flat(&got), flat(&want));
+        let g = (&got * &r).unwrap().sum_all().unwrap().backward().unwrap();
+        let (a, e) = (flat(g.get(&x).unwrap()), flat(gw.get(&x).unwrap()));
+        assert!(a.iter().zip(&e).all(|(a, e)| (a - e).abs() < 1e-5), "{a:?} vs {e:?}");
+    }
+}
