@@ -14,7 +14,7 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Task {
-    /// Run the criterion benchmarks (warping a 1920x1080 frame, ...).
+    /// Run the criterion benchmarks (warping a 1920x1080 frame, convolutions, training samples).
     Bench {
         /// Only benchmarks whose name contains this.
         filter: Option<String>,
@@ -30,7 +30,7 @@ fn main() -> Result<()> {
 fn bench(filter: Option<&str>) -> Result<()> {
     let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
     let mut cmd = Command::new(cargo);
-    cmd.args(["bench", "-p", "ivp-core"]);
+    cmd.args(["bench", "-p", "ivp-core", "-p", "ivp-data"]);
     if let Some(f) = filter {
         cmd.args(["--", f]);
     }

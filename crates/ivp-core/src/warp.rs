@@ -8,9 +8,9 @@
 //! [`MIN_BILINEAR_WEIGHT`] dropped.
 //!
 //! The depth weights need the largest depth before anything is splatted, so there are two passes.
-//! Pass 1 projects every source pixel to find that depth and, for each chunk of [`CHUNK`] source
-//! pixels of a row, the target rows it reaches. Pass 2 cuts the target frame into bands of
-//! [`BAND_ROWS`] rows; each band projects again the chunks that reach it, in source order, and
+//! Pass 1 projects every source pixel to find that depth and, for each chunk of `CHUNK` source
+//! pixels of a row, the target rows it reaches. Pass 2 cuts the target frame into bands of rows
+//! (`band_rows`); each band projects again the chunks that reach it, in source order, and
 //! accumulates into a scratch small enough to stay in cache. Every target pixel therefore sums its
 //! splats in source order, whatever the number of threads, bands or chunks: the same input gives
 //! the same bits on any machine, and the same bits as a plain serial loop over the source pixels.
@@ -37,10 +37,15 @@ pub const MIN_BILINEAR_WEIGHT: f64 = 1e-3;
 /// of the vectorised loops. Small, so that a chunk of a row tilted by a roll of the camera
 /// reaches few bands.
 const CHUNK: usize = 64;
-/// Target rows per band of pass 2. Few chunks reach two bands and are projected twice (7% more
-/// for a frame of head motion), and a band's accumulator (32 bytes a pixel, 2 MB for 1920
-/// columns) stays in cache.
-const BAND_ROWS: usize = 32;
+/// Target rows per band of pass 2, at least: few chunks of a frame of head motion reach two bands
+/// and are projected twice (7% more), and a band's accumulator (32 bytes a pixel, 2 MB for 1920
+/// columns) stays in cache. See [`band_rows`] for more.
+const MIN_BAND_ROWS: usize = 32;
+/// Bands are made taller (see `band_rows`) while a chunk reaches more bands than this on average
+/// and their accumulator fits in [`MAX_BAND_BYTES`].
+const MAX_BANDS_PER_CHUNK: f64 = 1.5;
+/// The largest accumulator of a band, about a quarter of the L3 cache.
+const MAX_BAND_BYTES: usize = 8 << 20;
 /// f32 lanes of one accumulator block.
 const LANES: usize = 8;
 /// Accumulator cells past a band's pixels that take the splats not made, and are never read.
@@ -61,7 +66,7 @@ pub struct Warp {
 pub fn warp_forward(image: &RgbImage, depth: &DepthMap, k: &Intrinsics, transform: &DMat4) -> Warp {
     assert!(image.same_size(depth), "image and depth differ in size");
     let src = image.pixels();
-    let splat = splat(depth, k, transform, |i| src[i]);
+    let splat = splat(depth, k, transform, None, |i| src[i]);
     let holes = HoleMask::classify(image.width(), image.height(), &splat.known);
     Warp { image: splat.values, depth: splat.depth, holes }
 }
@@ -76,7 +81,7 @@ pub fn splat_field<const C: usize>(
 ) -> (Image<C>, Vec<bool>) {
     assert!(field.same_size(depth), "field and depth differ in size");
     let src = field.pixels();
-    let s = splat(depth, k, transform, |i| src[i]);
+    let s = splat(depth, k, transform, None, |i| src[i]);
     (s.values, s.known)
 }
 
@@ -169,7 +174,7 @@ impl Projector {
         let n = depth.len();
         let row = self.row_term(v);
         let [cx, cy, cz] = self.col_terms(u0, n);
-        let (rows, last_row) = (self.height as f64, (self.height - 1) as f64);
+        let (height, last_row) = (self.height as f64, (self.height - 1) as f64);
         // Per point first, reduced after: the loop vectorises only without a reduction in it.
         let (mut z, mut first, mut last) = ([0.0; CHUNK], [0.0; CHUNK], [0.0; CHUNK]);
         let (z, first, last) = (&mut z[..n], &mut first[..n], &mut last[..n]);
@@ -181,7 +186,7 @@ impl Projector {
             // less work. Clamped to the frame, and the first negated so that it is a maximum too.
             let qy = self.k.fy * x[1] * (1.0 / x[2]) + self.k.cy;
             let (low, high) = ((qy - 2.0 * SNAP_PX).floor(), (qy + 2.0 * SNAP_PX).floor());
-            let reaches = z_in_front & (high >= -1.0) & (low < rows);
+            let reaches = z_in_front & (high >= -1.0) & (low < height);
             first[p] = select(reaches, -max(low, 0.0), f64::NEG_INFINITY);
             last[p] = select(reaches, min(high + 1.0, last_row), f64::NEG_INFINITY);
         }
@@ -346,7 +351,7 @@ struct ChunkSplats {
     target: [[i64; CHUNK]; 4],
     /// Depth in the target camera.
     z: [f32; CHUNK],
-    /// The depth that enters the depth weight: clamped, 0 for a point behind the camera.
+    /// The depth that enters the depth weight: clamped, 0 for a point that does not land.
     weight_z: [f32; CHUNK],
 }
 
@@ -449,10 +454,13 @@ fn snap(x: f64) -> f64 {
     }
 }
 
+/// Splats `value` (of source pixel `i`) and the depth; with bands of `band_rows` target rows if
+/// given (for tests), else of [`band_rows`].
 fn splat<const C: usize>(
     depth: &DepthMap,
     k: &Intrinsics,
     t: &DMat4,
+    band_rows: Option<usize>,
     value: impl Fn(usize) -> [f32; C] + Sync,
 ) -> Splatted<C> {
     let (w, h) = (depth.width(), depth.height());
@@ -488,11 +496,12 @@ fn splat<const C: usize>(
         // Pass 2, band by band of target rows. The bands are handed out from a queue to one
         // worker per thread, so that each worker clears and warms one accumulator: a rayon split
         // of its own would take one for every piece of work stolen.
-        let band_pixels = BAND_ROWS * w;
+        let band_rows = band_rows.unwrap_or_else(|| self::band_rows(&chunk_rows, w, h, blocks_per_pixel(C)));
+        let band_pixels = band_rows * w;
         let bands =
             values.chunks_mut(band_pixels).zip(depth_out.chunks_mut(band_pixels)).zip(known.chunks_mut(band_pixels));
         let queue = Mutex::new(bands.enumerate());
-        let workers = rayon::current_num_threads().min(h.div_ceil(BAND_ROWS));
+        let workers = rayon::current_num_threads().min(h.div_ceil(band_rows));
         (0..workers).into_par_iter().for_each(|_| {
             let mut acc = vec![Block::default(); (band_pixels + SINKS) * blocks_per_pixel(C)];
             let mut splats = ChunkSplats::new();
@@ -500,7 +509,7 @@ fn splat<const C: usize>(
                 // A statement of its own, so that the lock is released before the work.
                 let job = queue.lock().unwrap().next();
                 let Some((b, ((values, depth_out), known))) = job else { break };
-                let band = b * BAND_ROWS..((b + 1) * BAND_ROWS).min(h);
+                let band = b * band_rows..((b + 1) * band_rows).min(h);
                 for v in (0..h).filter(|&v| row_rows[v].meets(&band)) {
                     for c in (0..chunks_per_row).filter(|&c| chunk_rows[v * chunks_per_row + c].meets(&band)) {
                         let pixels = chunk_pixels(v, c);
@@ -513,6 +522,26 @@ fn splat<const C: usize>(
         });
     }
     Splatted { values: Image::from_pixels(w, h, values), depth: Image::from_values(w, h, depth_out), known }
+}
+
+/// Target rows per band for a `w` x `h` frame whose chunks reach `chunk_rows`, with `blocks`
+/// accumulator blocks a pixel. A chunk that reaches several bands is projected for each: in a
+/// frame of large parallax, say near and far pixels mixed and a big step up, a chunk may reach
+/// most bands of [`MIN_BAND_ROWS`]. Taller bands then cost less, while they fit the cache.
+/// Any band height gives the same result, so this only weighs speed.
+fn band_rows(chunk_rows: &[TargetRows], w: usize, h: usize, blocks: usize) -> usize {
+    let tallest = MAX_BAND_BYTES / (w * blocks * std::mem::size_of::<Block>());
+    let reaching = || chunk_rows.iter().filter(|r| r.first <= r.last);
+    let chunks = reaching().count();
+    let mut rows = MIN_BAND_ROWS;
+    while rows < h && rows * 2 <= tallest {
+        let bands_reached: usize = reaching().map(|r| r.last as usize / rows - r.first as usize / rows + 1).sum();
+        if bands_reached as f64 <= MAX_BANDS_PER_CHUNK * chunks as f64 {
+            break;
+        }
+        rows *= 2;
+    }
+    rows
 }
 
 /// Pass 2, second half: adds the splats of the source pixels `pixels` to a band's accumulator
@@ -539,7 +568,8 @@ fn accumulate<const C: usize>(
 }
 
 /// Divides a band's accumulated values and depths by their weights into the outputs, marks the
-/// pixels that received any weight as known, and clears the accumulator for the next band.
+/// pixels that received any weight as known, and clears them for the next band (the others are
+/// still 0; the sinks are never read).
 fn normalise<const C: usize>(acc: &mut [Block], values: &mut [[f32; C]], depth: &mut [f32], known: &mut [bool]) {
     let blocks = const { blocks_per_pixel(C) };
     let get = |cell: &[Block], k: usize| cell[k / LANES].0[k % LANES];
@@ -809,7 +839,9 @@ mod tests {
     #[test]
     fn bands_and_chunks_give_the_bits_of_a_serial_splat() {
         // Wider than a chunk and taller than a band, with partial ones at the end; and degenerate.
-        for (w, h) in [(CHUNK * 2 + 13, BAND_ROWS * 3 + 5), (70, 41), (1, 1), (3, 2), (1, 9), (9, 1), (0, 0), (0, 3)] {
+        for (w, h) in
+            [(CHUNK * 2 + 13, MIN_BAND_ROWS * 3 + 5), (70, 41), (1, 1), (3, 2), (1, 9), (9, 1), (0, 0), (0, 3)]
+        {
             let img = textured(w, h);
             let depth = boxes_depth(w, h);
             let k = Intrinsics::new(w as f64, w as f64, w as f64 / 2.0 - 0.5, h as f64 / 2.0 - 0.5);
@@ -820,8 +852,31 @@ mod tests {
                     assert!(out.image == image && out.depth == depth_out, "{w}x{h}, {threads} threads, {t:?}");
                     assert_eq!(out.holes.known(), known);
                 }
+                // Whatever the height of the bands.
+                for band_rows in [1, 2, 3, 7, MIN_BAND_ROWS, h + 1] {
+                    let src = img.pixels();
+                    let out = with_threads(2, || splat(&depth, &k, &t, Some(band_rows), |i| src[i]));
+                    assert!(out.values == image && out.depth == depth_out && out.known == known, "{band_rows} rows");
+                }
             }
         }
+    }
+
+    #[test]
+    fn bands_grow_taller_when_chunks_reach_many_but_stay_in_cache() {
+        let rows = |first, last| TargetRows { first, last };
+        // Head motion: each chunk reaches two or three rows.
+        let near: Vec<TargetRows> = (0..1080).map(|v| rows(v, (v + 2).min(1079))).collect();
+        assert_eq!(band_rows(&near, 1920, 1080, 1), MIN_BAND_ROWS);
+        // Every chunk reaches every row: as tall as the cache allows (8 MB of 1920 * 32 bytes).
+        let far = vec![rows(0, 1079); 1080];
+        assert_eq!(band_rows(&far, 1920, 1080, 1), 128);
+        assert_eq!(band_rows(&far, 1920, 1080, 2), 64);
+        // A small frame: one band is enough.
+        assert_eq!(band_rows(&vec![rows(0, 239); 240], 320, 240, 1), 256);
+        // Nothing lands, or the frame is huge.
+        assert_eq!(band_rows(&[TargetRows::NONE; 10], 1920, 1080, 1), MIN_BAND_ROWS);
+        assert_eq!(band_rows(&far, 1 << 20, 1080, 1), MIN_BAND_ROWS);
     }
 
     #[test]

@@ -347,7 +347,15 @@ fn run_show_sample(args: ShowSampleArgs) -> Result<()> {
         .as_flat()
         .iter()
         .zip(sample.warped_depth.as_flat())
-        .map(|(&m, &z)| if m > 0.5 { 255 } else if z > 0.0 { 0 } else { 128 })
+        .map(|(&m, &z)| {
+            if m > 0.5 {
+                255
+            } else if z > 0.0 {
+                0
+            } else {
+                128
+            }
+        })
         .collect();
     let o = &sample.origin;
     let (n2, n, t) = (o.frames.before_last, o.frames.last, o.frames.target);
