@@ -26,6 +26,7 @@
 //!   shapes alone, each accumulates its partial sum in tile order, and the partials are added in
 //!   chunk order.
 
+use crate::ops::contiguous_values;
 use std::cell::RefCell;
 use std::ops::Range;
 
@@ -529,14 +530,6 @@ fn bias_grad(g: &Geom, grad: &[f32]) -> Vec<f32> {
     (0..g.cout).into_par_iter().map(|co| (0..g.batch).map(|b| sum(&grad[(b * g.cout + co) * p..][..p])).sum()).collect()
 }
 
-/// The f32 values of a contiguous tensor's storage.
-fn values<'a>(s: &'a CpuStorage, l: &Layout) -> Result<&'a [f32]> {
-    match l.contiguous_offsets() {
-        Some((a, b)) => Ok(&s.as_slice::<f32>()?[a..b]),
-        None => bail!("conv2d: contiguous tensors expected"),
-    }
-}
-
 /// The forward op on (x, w) or (x, w, bias).
 #[derive(Clone, Copy, Debug)]
 struct Conv2d {
@@ -558,8 +551,14 @@ impl Conv2d {
         bias: Option<(&CpuStorage, &Layout)>,
     ) -> Result<(CpuStorage, Shape)> {
         let g = self.geom(x.1, w.1)?;
-        let bias = bias.map(|(s, l)| values(s, l)).transpose()?;
-        let out = forward(&g, values(x.0, x.1)?, values(w.0, w.1)?, bias, self.tile_bytes);
+        let bias = bias.map(|(s, l)| contiguous_values(s, l, "conv2d")).transpose()?;
+        let out = forward(
+            &g,
+            contiguous_values(x.0, x.1, "conv2d")?,
+            contiguous_values(w.0, w.1, "conv2d")?,
+            bias,
+            self.tile_bytes,
+        );
         Ok((CpuStorage::F32(out), Shape::from((g.batch, g.cout, g.ho, g.wo))))
     }
 
@@ -666,7 +665,8 @@ impl CustomOp2 for Conv2dInputGrad {
         if (g.ho, g.wo) != (ho, wo) || wcout != cout {
             bail!("conv2d input gradient: grad {:?} for kernel {:?}", l1.dims(), l2.dims());
         }
-        let dx = input_grad(&g, values(s1, l1)?, values(s2, l2)?, self.tile_bytes);
+        let dx =
+            input_grad(&g, contiguous_values(s1, l1, "conv2d")?, contiguous_values(s2, l2, "conv2d")?, self.tile_bytes);
         Ok((CpuStorage::F32(dx), Shape::from((batch, cin, self.h, self.w))))
     }
 }
@@ -693,7 +693,7 @@ impl CustomOp2 for Conv2dWeightGrad {
         if (g.ho, g.wo) != (ho, wo) || l1.dims()[0] != l2.dims()[0] {
             bail!("conv2d weight gradient: input {:?}, grad {:?}", l1.dims(), l2.dims());
         }
-        let (x, grad) = (values(s1, l1)?, values(s2, l2)?);
+        let (x, grad) = (contiguous_values(s1, l1, "conv2d")?, contiguous_values(s2, l2, "conv2d")?);
         let dw = if self.weights { weight_grad(&g, x, grad, self.tile_bytes) } else { Vec::new() };
         let db = if self.bias { bias_grad(&g, grad) } else { Vec::new() };
         // Row co: the weight gradients of output channel co, then its bias gradient.
@@ -710,26 +710,8 @@ impl CustomOp2 for Conv2dWeightGrad {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::ops::test_util::*;
     use candle_core::{Device, Var};
-
-    /// Deterministic values in [-1, 1) (candle cannot seed its CPU generator).
-    fn random(shape: &[usize], seed: u64) -> Tensor {
-        let mut s = seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1;
-        let n = shape.iter().product();
-        let v: Vec<f32> = (0..n)
-            .map(|_| {
-                s ^= s << 13;
-                s ^= s >> 7;
-                s ^= s << 17;
-                (s >> 40) as f32 / (1u64 << 23) as f32 - 1.0
-            })
-            .collect();
-        Tensor::from_vec(v, shape, &Device::Cpu).unwrap()
-    }
-
-    fn flat(t: &Tensor) -> Vec<f32> {
-        t.flatten_all().unwrap().to_vec1().unwrap()
-    }
 
     /// max |a - b| / max(1, max |b|)
     fn rel_err(a: &Tensor, b: &Tensor) -> f32 {

@@ -5,3 +5,40 @@ pub mod resize;
 pub mod sampler;
 
 pub use conv2d::conv2d;
+pub use resize::{upsample_bilinear_to, upsample_nearest2x_to};
+pub use sampler::sample_bilinear;
+
+use candle_core::{bail, CpuStorage, Layout, Result};
+
+/// The f32 values of a contiguous tensor's storage; `op` names the caller in the error.
+fn contiguous_values<'a>(s: &'a CpuStorage, l: &Layout, op: &str) -> Result<&'a [f32]> {
+    match l.contiguous_offsets() {
+        Some((a, b)) => Ok(&s.as_slice::<f32>()?[a..b]),
+        None => bail!("{op}: contiguous tensors expected"),
+    }
+}
+
+/// Helpers shared by the operators' tests.
+#[cfg(test)]
+mod test_util {
+    use candle_core::{Device, Tensor};
+
+    /// Deterministic values in [-1, 1) (candle cannot seed its CPU generator).
+    pub fn random(shape: &[usize], seed: u64) -> Tensor {
+        let mut s = seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1;
+        let n = shape.iter().product();
+        let v: Vec<f32> = (0..n)
+            .map(|_| {
+                s ^= s << 13;
+                s ^= s >> 7;
+                s ^= s << 17;
+                (s >> 40) as f32 / (1u64 << 23) as f32 - 1.0
+            })
+            .collect();
+        Tensor::from_vec(v, shape, &Device::Cpu).unwrap()
+    }
+
+    pub fn flat(t: &Tensor) -> Vec<f32> {
+        t.flatten_all().unwrap().to_vec1().unwrap()
+    }
+}

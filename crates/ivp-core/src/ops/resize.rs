@@ -11,6 +11,7 @@
 //! (image, channel) planes, each accumulated sequentially in pixel order. Results are bit-identical
 //! for any number of rayon threads.
 
+use crate::ops::contiguous_values;
 use candle_core::{bail, CpuStorage, CustomOp1, DType, Layout, Result, Shape, Tensor};
 use rayon::prelude::*;
 
@@ -48,14 +49,6 @@ fn check(x: &Tensor, name: &str) -> Result<()> {
     Ok(())
 }
 
-/// The contiguous f32 values of a tensor's storage.
-fn values<'a>(s: &'a CpuStorage, l: &Layout) -> Result<&'a [f32]> {
-    match l.contiguous_offsets() {
-        Some((a, b)) => Ok(&s.as_slice::<f32>()?[a..b]),
-        None => bail!("resize: contiguous tensors expected"),
-    }
-}
-
 /// The forward nearest op.
 #[derive(Clone, Copy, Debug)]
 struct Nearest2x {
@@ -71,7 +64,7 @@ impl CustomOp1 for Nearest2x {
     fn cpu_fwd(&self, s: &CpuStorage, l: &Layout) -> Result<(CpuStorage, Shape)> {
         let (batch, c, h, w) = l.shape().dims4()?;
         let (height, width) = (self.height, self.width);
-        let x = values(s, l)?;
+        let x = contiguous_values(s, l, "resize")?;
         let mut out = vec![0f32; batch * c * height * width];
         if width > 0 {
             // Output row r is row oy = r % height of plane r / height.
@@ -109,7 +102,7 @@ impl CustomOp1 for Nearest2xGrad {
         if height > 2 * h || width > 2 * w {
             bail!("upsample_nearest2x_to gradient: {:?} for a {h}x{w} input", l.dims());
         }
-        let grad = values(s, l)?;
+        let grad = contiguous_values(s, l, "resize")?;
         let mut dx = vec![0f32; batch * c * h * w];
         if w > 0 {
             // Input row r is row iy = r % h of plane r / h; it collects output rows 2 iy and 2 iy + 1.
@@ -157,7 +150,7 @@ impl CustomOp1 for Bilinear {
     fn cpu_fwd(&self, s: &CpuStorage, l: &Layout) -> Result<(CpuStorage, Shape)> {
         let (batch, c, h, w) = l.shape().dims4()?;
         let (height, width) = (self.height, self.width);
-        let x = values(s, l)?;
+        let x = contiguous_values(s, l, "resize")?;
         let mut out = vec![0f32; batch * c * height * width];
         if height * width > 0 {
             let (ty, tx) = (bilinear_taps(h, height), bilinear_taps(w, width));
@@ -196,7 +189,7 @@ impl CustomOp1 for BilinearGrad {
     fn cpu_fwd(&self, s: &CpuStorage, l: &Layout) -> Result<(CpuStorage, Shape)> {
         let (batch, c, height, width) = l.shape().dims4()?;
         let (h, w) = (self.h, self.w);
-        let grad = values(s, l)?;
+        let grad = contiguous_values(s, l, "resize")?;
         let mut dx = vec![0f32; batch * c * h * w];
         if h * w > 0 && height * width > 0 {
             let (ty, tx) = (bilinear_taps(h, height), bilinear_taps(w, width));
@@ -221,26 +214,8 @@ impl CustomOp1 for BilinearGrad {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::ops::test_util::*;
     use candle_core::{Device, Var};
-
-    /// Deterministic values in [-1, 1) (candle cannot seed its CPU generator).
-    fn random(shape: &[usize], seed: u64) -> Tensor {
-        let mut s = seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1;
-        let n = shape.iter().product();
-        let v: Vec<f32> = (0..n)
-            .map(|_| {
-                s ^= s << 13;
-                s ^= s >> 7;
-                s ^= s << 17;
-                (s >> 40) as f32 / (1u64 << 23) as f32 - 1.0
-            })
-            .collect();
-        Tensor::from_vec(v, shape, &Device::Cpu).unwrap()
-    }
-
-    fn flat(t: &Tensor) -> Vec<f32> {
-        t.flatten_all().unwrap().to_vec1().unwrap()
-    }
 
     fn tensor(v: Vec<f32>, shape: &[usize]) -> Tensor {
         Tensor::from_vec(v, shape, &Device::Cpu).unwrap()

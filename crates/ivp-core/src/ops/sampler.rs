@@ -13,6 +13,7 @@
 //! order); the image gradient, a scatter-add, is parallel over (image, channel) planes, each plane
 //! accumulated sequentially in pixel order.
 
+use crate::ops::contiguous_values;
 use candle_core::{bail, CpuStorage, CustomOp2, CustomOp3, DType, Layout, Result, Shape, Tensor};
 use rayon::prelude::*;
 
@@ -30,14 +31,6 @@ pub fn sample_bilinear(image: &Tensor, vectors: &Tensor) -> Result<Tensor> {
         bail!("sample_bilinear: image {:?}, vectors {:?}", image.dims(), vectors.dims());
     }
     image.contiguous()?.apply_op2(&vectors.contiguous()?, Sampler)
-}
-
-/// The contiguous f32 values of a tensor's storage.
-fn values<'a>(s: &'a CpuStorage, l: &Layout) -> Result<&'a [f32]> {
-    match l.contiguous_offsets() {
-        Some((a, b)) => Ok(&s.as_slice::<f32>()?[a..b]),
-        None => bail!("sample_bilinear: contiguous tensors expected"),
-    }
 }
 
 /// The four corners of a bilinear read at (sx, sy) in an h x w plane: the top-left corner
@@ -117,7 +110,7 @@ impl CustomOp2 for Sampler {
         if l2.dims() != [batch, 2, h, w] {
             bail!("sample_bilinear: image {:?}, vectors {:?}", l1.dims(), l2.dims());
         }
-        let (img, v) = (values(s1, l1)?, values(s2, l2)?);
+        let (img, v) = (contiguous_values(s1, l1, "sample_bilinear")?, contiguous_values(s2, l2, "sample_bilinear")?);
         let g = Geom { h, w };
         let mut out = vec![0f32; batch * c * h * w];
         if w > 0 {
@@ -171,7 +164,7 @@ impl CustomOp2 for SamplerImageGrad {
         if l1.dims() != [batch, 2, h, w] {
             bail!("sample_bilinear image gradient: vectors {:?}, grad {:?}", l1.dims(), l2.dims());
         }
-        let (v, grad) = (values(s1, l1)?, values(s2, l2)?);
+        let (v, grad) = (contiguous_values(s1, l1, "sample_bilinear")?, contiguous_values(s2, l2, "sample_bilinear")?);
         let g = Geom { h, w };
         let mut di = vec![0f32; batch * c * h * w];
         if h * w > 0 {
@@ -216,7 +209,11 @@ impl CustomOp3 for SamplerVectorGrad {
         if l2.dims() != [batch, 2, h, w] || l3.dims() != l1.dims() {
             bail!("sample_bilinear vector gradient: {:?}, {:?}, {:?}", l1.dims(), l2.dims(), l3.dims());
         }
-        let (img, v, grad) = (values(s1, l1)?, values(s2, l2)?, values(s3, l3)?);
+        let (img, v, grad) = (
+            contiguous_values(s1, l1, "sample_bilinear")?,
+            contiguous_values(s2, l2, "sample_bilinear")?,
+            contiguous_values(s3, l3, "sample_bilinear")?,
+        );
         let g = Geom { h, w };
         // Work item: one row (image b, row y) of both components, as [d/da (W values), d/db (W values)],
         // so that the corners are read once for both; then rearranged to (B, 2, H, W).
@@ -256,6 +253,7 @@ impl CustomOp3 for SamplerVectorGrad {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::ops::test_util::flat;
     use candle_core::{Device, Var};
 
     /// Deterministic values in [-1, 1) (candle cannot seed its CPU generator).
@@ -273,10 +271,6 @@ mod tests {
 
     fn tensor(v: Vec<f32>, shape: &[usize]) -> Tensor {
         Tensor::from_vec(v, shape, &Device::Cpu).unwrap()
-    }
-
-    fn flat(t: &Tensor) -> Vec<f32> {
-        t.flatten_all().unwrap().to_vec1().unwrap()
     }
 
     /// A 1 x 1 x 3 x 4 image with values 0..12 (row-major) and a constant offset (a, b).
