@@ -8,6 +8,7 @@ pub mod image;
 pub mod infill;
 pub mod metrics;
 pub mod ops;
+pub mod optim;
 pub mod prior;
 pub mod warp;
 
