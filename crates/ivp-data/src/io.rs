@@ -188,7 +188,7 @@ pub fn write_depth_exr(path: impl AsRef<Path>, depth: &DepthMap) -> Result<()> {
 ///
 /// No `fsync`: the aim is that readers never see partial files, not durability across power loss,
 /// and syncing every frame would slow down writing datasets considerably.
-pub(crate) fn write_atomically(path: &Path, bytes: &[u8]) -> Result<()> {
+pub fn write_atomically(path: &Path, bytes: &[u8]) -> Result<()> {
     let tmp = temporary_sibling(path)?;
     let result = fs::OpenOptions::new()
         .write(true)

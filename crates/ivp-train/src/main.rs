@@ -10,7 +10,6 @@ use ivp_train::check::check_clip;
 use ivp_train::eval::{
     self, check_targets, clip_name, evaluate, format_table, warp_to_target, Method, DEFAULT_TARGETS,
 };
-use ivp_train::write_atomic;
 
 #[global_allocator]
 static ALLOCATOR: mimalloc::MiMalloc = mimalloc::MiMalloc;
@@ -267,7 +266,10 @@ fn run_eval(args: EvalArgs, progress: bool) -> Result<()> {
     print!("{}", format_table(&report));
     if let Some(path) = &args.json {
         let json = serde_json::to_string_pretty(&report)?;
-        write_atomic(path, json.as_bytes())?;
+        if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
+            std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+        }
+        ivp_data::write_atomically(path, json.as_bytes())?;
         println!("scores written to {}", path.display());
     }
     Ok(())
