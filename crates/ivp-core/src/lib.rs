@@ -5,8 +5,12 @@
 pub mod camera;
 pub mod holes;
 pub mod image;
+pub mod inference;
 pub mod infill;
+pub mod iterative;
+pub mod loss;
 pub mod metrics;
+pub mod model;
 pub mod ops;
 pub mod optim;
 pub mod prior;

@@ -66,7 +66,7 @@ pub enum DataError {
 }
 
 impl DataError {
-    pub(crate) fn io(path: &Path, action: &'static str, cause: std::io::Error) -> Self {
+    pub fn io(path: &Path, action: &'static str, cause: std::io::Error) -> Self {
         Self::Io { path: path.to_path_buf(), action, cause }
     }
 

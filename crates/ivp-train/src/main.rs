@@ -4,9 +4,12 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context, Result};
 use clap::{Args, Parser, Subcommand};
+use ivp_core::inference::ModelInfiller;
+use ivp_core::infill::Infiller;
 use ivp_core::infill::{classical_infiller, fill_new_regions, CLASSICAL_METHODS};
 use ivp_data::{find_clips, write_depth_exr, write_gray_png, write_rgb_png, Clip};
 use ivp_train::check::check_clip;
+use ivp_train::checkpoint::load_model;
 use ivp_train::eval::{
     self, check_targets, clip_name, evaluate, format_table, warp_to_target, Method, DEFAULT_TARGETS,
 };
@@ -46,6 +49,133 @@ enum Command {
     Generate(GenerateArgs),
     /// Draw one training sample as a labelled sheet (frames, warps, holes, prior, depth).
     ShowSample(ShowSampleArgs),
+    /// Train a network from scratch (or resume a run) on generated scenes or a dataset.
+    Train(TrainArgs),
+    /// Write the model file (weights and configuration) of a training checkpoint.
+    Export(ExportArgs),
+    /// Predict one target frame of a clip with a trained model and write images of the result.
+    Infer(InferArgs),
+    /// Double a clip's frame rate: the even frames are rendered, the odd ones predicted.
+    Upsample(UpsampleArgs),
+    /// Time one training step or one inference on random inputs (the cases of
+    /// shared/bench/torch_reference.py, with the same JSON keys).
+    #[command(subcommand)]
+    Bench(BenchCommand),
+}
+
+#[derive(Args)]
+struct TrainArgs {
+    /// Train on generated scenes (the default when --data is not given).
+    #[arg(long, conflicts_with = "data")]
+    synthetic: bool,
+    /// Train on the clips of this dataset folder.
+    #[arg(long)]
+    data: Option<PathBuf>,
+    /// A TOML file of training settings (any of the fields of `TrainConfig`); flags override it.
+    #[arg(long)]
+    config: Option<PathBuf>,
+    /// full, intensity, no-tg (zeros for the temporal prior) or no-depth (no depth head).
+    #[arg(long)]
+    variant: Option<String>,
+    #[arg(long)]
+    width_mult: Option<f64>,
+    #[arg(long)]
+    steps: Option<u64>,
+    #[arg(long)]
+    batch: Option<usize>,
+    #[arg(long)]
+    crop: Option<usize>,
+    #[arg(long)]
+    lr: Option<f64>,
+    #[arg(long)]
+    seed: Option<u64>,
+    /// Steps between checkpoints.
+    #[arg(long)]
+    checkpoint_every: Option<u64>,
+    /// Steps between validations (0: only at the end).
+    #[arg(long)]
+    validate_every: Option<u64>,
+    /// The run folder: config.toml, metrics.csv, loss.png, checkpoints/, model.safetensors.
+    #[arg(long)]
+    out: PathBuf,
+    /// Continue the run in --out from its last checkpoint (bit-identical to an uninterrupted run).
+    #[arg(long)]
+    resume: bool,
+}
+
+#[derive(Args)]
+struct ExportArgs {
+    /// A checkpoint (RUN_DIR/checkpoints/step_*.safetensors) or a model file.
+    #[arg(long)]
+    checkpoint: PathBuf,
+    /// The model file to write.
+    #[arg(long)]
+    out: PathBuf,
+}
+
+#[derive(Args)]
+struct InferArgs {
+    /// The clip folder.
+    #[arg(long)]
+    clip: PathBuf,
+    /// A model file (ivp train writes RUN_DIR/model.safetensors).
+    #[arg(long)]
+    model: PathBuf,
+    /// The frame to predict (from frames T-1 and T-3).
+    #[arg(long)]
+    target: usize,
+    /// Iterations of the test-time infilling (SPEC §6.5).
+    #[arg(long, default_value_t = ivp_core::iterative::DEFAULT_ITERATIONS)]
+    iterations: usize,
+    /// Output folder: infilled.png, holes.png, vectors.png, error.png.
+    #[arg(long)]
+    out: PathBuf,
+}
+
+#[derive(Args)]
+struct UpsampleArgs {
+    /// The clip folder; its even frames are taken as rendered.
+    #[arg(long)]
+    clip: PathBuf,
+    #[arg(long)]
+    model: PathBuf,
+    #[arg(long, default_value_t = ivp_core::iterative::DEFAULT_ITERATIONS)]
+    iterations: usize,
+    /// Output folder: frames/NNNN.png and preview.gif.
+    #[arg(long)]
+    out: PathBuf,
+}
+
+#[derive(Subcommand)]
+enum BenchCommand {
+    /// Forward, sampler, losses, backward and Adam on one batch.
+    Train {
+        #[arg(long, default_value_t = 4)]
+        batch: usize,
+        #[arg(long, default_value_t = 256)]
+        crop: usize,
+        #[arg(long, default_value_t = 5)]
+        runs: usize,
+        #[arg(long, default_value_t = 1.0)]
+        width_mult: f64,
+        /// Add the milliseconds per run spent in each operator.
+        #[arg(long)]
+        profile: bool,
+    },
+    /// One dense forward pass and sampling of a frame (padded to a multiple of 16).
+    Infer {
+        #[arg(long, default_value_t = 1080)]
+        height: usize,
+        #[arg(long, default_value_t = 1920)]
+        width: usize,
+        #[arg(long, default_value_t = 3)]
+        runs: usize,
+        #[arg(long, default_value_t = 1.0)]
+        width_mult: f64,
+        /// Add the milliseconds per run spent in each operator.
+        #[arg(long)]
+        profile: bool,
+    },
 }
 
 #[derive(Args)]
@@ -81,7 +211,8 @@ struct EvalArgs {
     #[arg(long)]
     data: PathBuf,
     /// Comma-separated methods: copy (the last frame as it is), warp (disocclusions black),
-    /// fill (background of the 4 nearest known pixels), oracle (uses the ground truth).
+    /// fill (background of the 4 nearest known pixels), oracle (uses the ground truth), and the
+    /// names given with --model (added when not listed).
     #[arg(long, value_delimiter = ',', default_value = "copy,warp,fill")]
     methods: Vec<String>,
     /// Frames to predict in each clip (each target t is predicted from frames t-3 and t-1).
@@ -90,6 +221,12 @@ struct EvalArgs {
     /// Also write the scores as JSON to this file.
     #[arg(long)]
     json: Option<PathBuf>,
+    /// A trained model, scored as method `ivp` (FILE) or NAME (NAME=FILE); repeatable.
+    #[arg(long, value_name = "[NAME=]FILE")]
+    model: Vec<String>,
+    /// Iterations of the models' test-time infilling (SPEC §6.5).
+    #[arg(long, default_value_t = ivp_core::iterative::DEFAULT_ITERATIONS)]
+    iterations: usize,
     /// Score frames predicted by another tool: NAME=DIR, read from DIR/<clip name>/<t:04>.png.
     #[arg(long, value_name = "NAME=DIR")]
     external: Vec<String>,
@@ -162,6 +299,11 @@ fn main() -> Result<()> {
         Command::Check(args) => run_check(args),
         Command::Generate(args) => run_generate(args, progress),
         Command::ShowSample(args) => run_show_sample(args),
+        Command::Bench(args) => run_bench(args),
+        Command::Train(args) => run_train(args, progress),
+        Command::Export(args) => run_export(args),
+        Command::Infer(args) => run_infer(args),
+        Command::Upsample(args) => run_upsample(args, progress),
     }
 }
 
@@ -237,13 +379,29 @@ fn export_targets(data: &Path, targets: &[usize], out: &Path, progress: bool) ->
 }
 
 fn parse_methods(args: &EvalArgs) -> Result<Vec<Method>> {
+    let mut models = Vec::new();
+    for spec in &args.model {
+        let (name, file) = match spec.split_once('=') {
+            Some((name, file)) => (name.to_string(), PathBuf::from(file)),
+            None => ("ivp".to_string(), PathBuf::from(spec)),
+        };
+        anyhow::ensure!(args.iterations > 0, "--iterations must be at least 1");
+        let (net, _) = load_model(&file)?;
+        models.push(ModelInfiller::new(name, net, args.iterations));
+    }
     let mut methods = Vec::new();
     for name in args.methods.iter().map(|m| m.trim()).filter(|m| !m.is_empty()) {
-        let Some(m) = classical_infiller(name) else {
-            bail!("unknown method `{name}`: choose among {}", CLASSICAL_METHODS.join(", "));
-        };
-        methods.push(Method::Internal(m));
+        if let Some(m) = classical_infiller(name) {
+            methods.push(Method::Internal(m));
+        } else if let Some(i) = models.iter().position(|m| m.name() == name) {
+            methods.push(Method::Internal(Box::new(models.remove(i))));
+        } else if name == "ivp" {
+            bail!("method `ivp` needs a trained model: add --model FILE");
+        } else {
+            bail!("unknown method `{name}`: choose among {} or a --model name", CLASSICAL_METHODS.join(", "));
+        }
     }
+    methods.extend(models.into_iter().map(|m| Method::Internal(Box::new(m))));
     for spec in &args.external {
         let Some((name, dir)) = spec.split_once('=') else {
             bail!("--external takes NAME=DIR, got `{spec}`");
@@ -272,6 +430,128 @@ fn run_eval(args: EvalArgs, progress: bool) -> Result<()> {
         ivp_data::write_atomically(path, json.as_bytes())?;
         println!("scores written to {}", path.display());
     }
+    Ok(())
+}
+
+fn run_train(args: TrainArgs, progress: bool) -> Result<()> {
+    use ivp_train::train::{train, RunOptions, TrainConfig};
+    let mut config = match &args.config {
+        Some(path) => TrainConfig::from_toml_file(path)?,
+        None if args.resume => {
+            // A resumed run keeps its configuration unless flags change it (only --steps may).
+            let path = args.out.join("config.toml");
+            TrainConfig::from_toml_file(&path).with_context(|| format!("resuming {}", args.out.display()))?
+        }
+        None => TrainConfig::default(),
+    };
+    if args.data.is_some() {
+        config.data = args.data.clone();
+    }
+    if args.synthetic {
+        config.data = None;
+    }
+    macro_rules! set {
+        ($($field:ident),*) => {$(if let Some(v) = args.$field.clone() { config.$field = v; })*};
+    }
+    set!(variant, width_mult, steps, batch, crop, lr, seed, checkpoint_every, validate_every);
+    config.validate()?;
+
+    let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+    let flag = stop.clone();
+    ctrlc::set_handler(move || {
+        if flag.swap(true, std::sync::atomic::Ordering::SeqCst) {
+            std::process::exit(130); // a second Ctrl-C: leave at once
+        }
+        eprintln!("\nCtrl-C: stopping after this step with a checkpoint (press again to quit at once)");
+    })
+    .context("installing the Ctrl-C handler")?;
+    println!(
+        "training {} (width {}) on {} for {} steps of {} crops of {}x{} -> {}",
+        config.variant,
+        config.width_mult,
+        config.data.as_ref().map_or("generated scenes".to_string(), |d| d.display().to_string()),
+        config.steps,
+        config.batch,
+        config.crop,
+        config.crop,
+        args.out.display()
+    );
+    let options = RunOptions { resume: args.resume, progress, stop: Some(stop) };
+    let summary = train(&config, &args.out, &options)?;
+    let minutes = summary.elapsed.as_secs_f64() / 60.0;
+    if let (Some(v), Some(f)) = (summary.last_validation, summary.fill) {
+        println!(
+            "validation after {} steps ({minutes:.1} min): D-MSE {:.1} D-SSIM {:.4}; fill D-MSE {:.1} D-SSIM {:.4}",
+            summary.steps_done, v.d_mse, v.d_ssim, f.d_mse, f.d_ssim
+        );
+    }
+    match &summary.model_path {
+        Some(path) => println!("model written to {}", path.display()),
+        None => println!("stopped at step {}: continue with --resume", summary.steps_done),
+    }
+    Ok(())
+}
+
+fn run_export(args: ExportArgs) -> Result<()> {
+    let config = ivp_train::checkpoint::export_model(&args.checkpoint, &args.out)?;
+    println!("exported {} (width {}) to {}", config.variant, config.width_mult, args.out.display());
+    Ok(())
+}
+
+fn run_infer(args: InferArgs) -> Result<()> {
+    anyhow::ensure!(args.iterations > 0, "--iterations must be at least 1");
+    let (net, _) = load_model(&args.model)?;
+    let model = ModelInfiller::new("ivp", net, args.iterations);
+    let clip = Clip::open(&args.clip)?;
+    let outputs = ivp_train::infer::run_infer(&model, &clip, args.target, &args.out)?;
+    for f in &outputs.files {
+        println!("wrote {}", f.display());
+    }
+    if let Some(mae) = outputs.disocclusion_mae {
+        println!("mean absolute error on the disocclusions: {mae:.2} (0..255)");
+    }
+    Ok(())
+}
+
+fn run_upsample(args: UpsampleArgs, progress: bool) -> Result<()> {
+    anyhow::ensure!(args.iterations > 0, "--iterations must be at least 1");
+    let (net, _) = load_model(&args.model)?;
+    let model = ModelInfiller::new("ivp", net, args.iterations);
+    let clip = Clip::open(&args.clip)?;
+    let bar = eval::progress_bar(progress, clip.len() as u64, "upsampling");
+    let summary = ivp_train::infer::run_upsample(&model, &clip, &args.out, |_| bar.inc(1))?;
+    bar.finish_and_clear();
+    println!(
+        "{} frames ({} predicted, {:.0} ms each{}) -> {}, preview {}",
+        summary.frames,
+        summary.predicted,
+        summary.ms_per_predicted_frame,
+        summary.d_mse.map_or(String::new(), |d| format!(", D-MSE {d:.1}")),
+        args.out.join("frames").display(),
+        summary.preview.display()
+    );
+    Ok(())
+}
+
+fn run_bench(command: BenchCommand) -> Result<()> {
+    use ivp_train::bench::{bench_infer, bench_train, InferCase, TrainCase};
+    let check_width = |m: f64| {
+        anyhow::ensure!(m > 0.0 && m.is_finite() && m <= 4.0, "--width-mult must be in (0, 4], got {m}");
+        Ok(())
+    };
+    let report = match command {
+        BenchCommand::Train { batch, crop, runs, width_mult, profile } => {
+            check_width(width_mult)?;
+            anyhow::ensure!(batch > 0 && crop >= 16 && runs > 0, "--batch, --runs must be >= 1 and --crop >= 16");
+            bench_train(&TrainCase { batch, crop, runs, width_mult, profile })?
+        }
+        BenchCommand::Infer { height, width, runs, width_mult, profile } => {
+            check_width(width_mult)?;
+            anyhow::ensure!(height >= 16 && width >= 16 && runs > 0, "--height, --width must be >= 16 and --runs >= 1");
+            bench_infer(&InferCase { height, width, runs, width_mult, profile })?
+        }
+    };
+    println!("{}", serde_json::to_string(&report)?);
     Ok(())
 }
 

@@ -47,6 +47,11 @@ impl Sheet {
 
 /// Draws `text` at `(x, y)` in white, clipped to `max_width` pixels.
 fn draw_text(image: &mut RgbImage, x: usize, y: usize, text: &str, max_width: usize) {
+    draw_text_in(image, x, y, text, max_width, [1.0, 1.0, 1.0]);
+}
+
+/// Draws `text` at `(x, y)` in `colour`, clipped to `max_width` pixels; glyphs are 16 pixels wide.
+pub(crate) fn draw_text_in(image: &mut RgbImage, x: usize, y: usize, text: &str, max_width: usize, colour: [f32; 3]) {
     let step = GLYPH * TEXT_SCALE;
     for (i, ch) in text.chars().take(max_width / step).enumerate() {
         let glyph = font8x8::legacy::BASIC_LEGACY.get(ch as usize).copied().unwrap_or([0; 8]);
@@ -59,7 +64,7 @@ fn draw_text(image: &mut RgbImage, x: usize, y: usize, text: &str, max_width: us
                     for dx in 0..TEXT_SCALE {
                         let (px, py) = (x + i * step + gx * TEXT_SCALE + dx, y + gy * TEXT_SCALE + dy);
                         if px < image.width() && py < image.height() {
-                            image.set(px, py, [1.0, 1.0, 1.0]);
+                            image.set(px, py, colour);
                         }
                     }
                 }

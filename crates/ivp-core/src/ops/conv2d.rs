@@ -26,7 +26,7 @@
 //!   shapes alone, each accumulates its partial sum in tile order, and the partials are added in
 //!   chunk order.
 
-use crate::ops::contiguous_values;
+use crate::ops::{contiguous_values, profile};
 use std::cell::RefCell;
 use std::ops::Range;
 
@@ -604,7 +604,7 @@ impl CustomOp2 for Conv2d {
     }
 
     fn cpu_fwd(&self, s1: &CpuStorage, l1: &Layout, s2: &CpuStorage, l2: &Layout) -> Result<(CpuStorage, Shape)> {
-        self.cpu((s1, l1), (s2, l2), None)
+        profile::timed("conv2d forward", || self.cpu((s1, l1), (s2, l2), None))
     }
 
     fn bwd(&self, x: &Tensor, w: &Tensor, _res: &Tensor, grad: &Tensor) -> Result<(Option<Tensor>, Option<Tensor>)> {
@@ -627,7 +627,7 @@ impl CustomOp3 for Conv2d {
         s3: &CpuStorage,
         l3: &Layout,
     ) -> Result<(CpuStorage, Shape)> {
-        self.cpu((s1, l1), (s2, l2), Some((s3, l3)))
+        profile::timed("conv2d forward", || self.cpu((s1, l1), (s2, l2), Some((s3, l3))))
     }
 
     fn bwd(
@@ -665,8 +665,8 @@ impl CustomOp2 for Conv2dInputGrad {
         if (g.ho, g.wo) != (ho, wo) || wcout != cout {
             bail!("conv2d input gradient: grad {:?} for kernel {:?}", l1.dims(), l2.dims());
         }
-        let dx =
-            input_grad(&g, contiguous_values(s1, l1, "conv2d")?, contiguous_values(s2, l2, "conv2d")?, self.tile_bytes);
+        let (grad, w) = (contiguous_values(s1, l1, "conv2d")?, contiguous_values(s2, l2, "conv2d")?);
+        let dx = profile::timed("conv2d input gradient", || input_grad(&g, grad, w, self.tile_bytes));
         Ok((CpuStorage::F32(dx), Shape::from((batch, cin, self.h, self.w))))
     }
 }
@@ -694,8 +694,11 @@ impl CustomOp2 for Conv2dWeightGrad {
             bail!("conv2d weight gradient: input {:?}, grad {:?}", l1.dims(), l2.dims());
         }
         let (x, grad) = (contiguous_values(s1, l1, "conv2d")?, contiguous_values(s2, l2, "conv2d")?);
-        let dw = if self.weights { weight_grad(&g, x, grad, self.tile_bytes) } else { Vec::new() };
-        let db = if self.bias { bias_grad(&g, grad) } else { Vec::new() };
+        let (dw, db) = profile::timed("conv2d weight gradient", || {
+            let dw = if self.weights { weight_grad(&g, x, grad, self.tile_bytes) } else { Vec::new() };
+            let db = if self.bias { bias_grad(&g, grad) } else { Vec::new() };
+            (dw, db)
+        });
         // Row co: the weight gradients of output channel co, then its bias gradient.
         let cols = dw.len() / cout + db.len() / cout;
         let mut out = Vec::with_capacity(cout * cols);

@@ -1,10 +1,13 @@
 //! Neural-network operators for candle that are faster on CPU than candle's own.
 
 pub mod conv2d;
+pub mod gaussian;
+pub mod profile;
 pub mod resize;
 pub mod sampler;
 
 pub use conv2d::conv2d;
+pub use gaussian::gaussian_blur;
 pub use resize::{upsample_bilinear_to, upsample_nearest2x_to};
 pub use sampler::sample_bilinear;
 
@@ -20,7 +23,7 @@ fn contiguous_values<'a>(s: &'a CpuStorage, l: &Layout, op: &str) -> Result<&'a 
 
 /// Helpers shared by the operators' tests.
 #[cfg(test)]
-mod test_util {
+pub(crate) mod test_util {
     use candle_core::{Device, Tensor};
 
     /// Deterministic values in [-1, 1) (candle cannot seed its CPU generator).

@@ -11,7 +11,7 @@
 //! (image, channel) planes, each accumulated sequentially in pixel order. Results are bit-identical
 //! for any number of rayon threads.
 
-use crate::ops::contiguous_values;
+use crate::ops::{contiguous_values, profile};
 use candle_core::{bail, CpuStorage, CustomOp1, DType, Layout, Result, Shape, Tensor};
 use rayon::prelude::*;
 
@@ -25,7 +25,7 @@ pub fn upsample_nearest2x_to(x: &Tensor, height: usize, width: usize) -> Result<
     if height > 2 * h || width > 2 * w {
         bail!("upsample_nearest2x_to: {:?} to {height}x{width}, more than twice the size", x.dims());
     }
-    x.contiguous()?.apply_op1(Nearest2x { height, width })
+    profile::timed("upsample nearest", || x.contiguous()?.apply_op1(Nearest2x { height, width }))
 }
 
 /// Bilinear resizing of `x` (B, C, H, W) to (B, C, height, width) with half-pixel centres: output
@@ -39,7 +39,7 @@ pub fn upsample_bilinear_to(x: &Tensor, height: usize, width: usize) -> Result<T
     if (h == 0 || w == 0) && height * width > 0 {
         bail!("upsample_bilinear_to: {:?} to {height}x{width}, empty input", x.dims());
     }
-    x.contiguous()?.apply_op1(Bilinear { height, width })
+    profile::timed("upsample bilinear", || x.contiguous()?.apply_op1(Bilinear { height, width }))
 }
 
 fn check(x: &Tensor, name: &str) -> Result<()> {
@@ -79,7 +79,7 @@ impl CustomOp1 for Nearest2x {
 
     fn bwd(&self, x: &Tensor, _res: &Tensor, grad: &Tensor) -> Result<Option<Tensor>> {
         let (_, _, h, w) = x.dims4()?;
-        Ok(Some(grad.contiguous()?.apply_op1_no_bwd(&Nearest2xGrad { h, w })?))
+        profile::timed("upsample nearest", || Ok(Some(grad.contiguous()?.apply_op1_no_bwd(&Nearest2xGrad { h, w })?)))
     }
 }
 
@@ -169,7 +169,7 @@ impl CustomOp1 for Bilinear {
 
     fn bwd(&self, x: &Tensor, _res: &Tensor, grad: &Tensor) -> Result<Option<Tensor>> {
         let (_, _, h, w) = x.dims4()?;
-        Ok(Some(grad.contiguous()?.apply_op1_no_bwd(&BilinearGrad { h, w })?))
+        profile::timed("upsample bilinear", || Ok(Some(grad.contiguous()?.apply_op1_no_bwd(&BilinearGrad { h, w })?)))
     }
 }
 

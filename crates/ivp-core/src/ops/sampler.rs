@@ -13,7 +13,7 @@
 //! order); the image gradient, a scatter-add, is parallel over (image, channel) planes, each plane
 //! accumulated sequentially in pixel order.
 
-use crate::ops::contiguous_values;
+use crate::ops::{contiguous_values, profile};
 use candle_core::{bail, CpuStorage, CustomOp2, CustomOp3, DType, Layout, Result, Shape, Tensor};
 use rayon::prelude::*;
 
@@ -30,7 +30,7 @@ pub fn sample_bilinear(image: &Tensor, vectors: &Tensor) -> Result<Tensor> {
     if vectors.dims() != [b, 2, h, w] {
         bail!("sample_bilinear: image {:?}, vectors {:?}", image.dims(), vectors.dims());
     }
-    image.contiguous()?.apply_op2(&vectors.contiguous()?, Sampler)
+    profile::timed("sampler", || image.contiguous()?.apply_op2(&vectors.contiguous()?, Sampler))
 }
 
 /// The four corners of a bilinear read at (sx, sy) in an h x w plane: the top-left corner
@@ -138,11 +138,11 @@ impl CustomOp2 for Sampler {
     ) -> Result<(Option<Tensor>, Option<Tensor>)> {
         let grad = grad.contiguous()?;
         let di = match image.track_op() {
-            true => Some(vectors.apply_op2_no_bwd(&grad, &SamplerImageGrad)?),
+            true => Some(profile::timed("sampler", || vectors.apply_op2_no_bwd(&grad, &SamplerImageGrad))?),
             false => None,
         };
         let dv = match vectors.track_op() {
-            true => Some(image.apply_op3_no_bwd(vectors, &grad, &SamplerVectorGrad)?),
+            true => Some(profile::timed("sampler", || image.apply_op3_no_bwd(vectors, &grad, &SamplerVectorGrad))?),
             false => None,
         };
         Ok((di, dv))

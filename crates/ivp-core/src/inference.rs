@@ -1,0 +1,261 @@
+//! A trained network at test time, on images: the [`VectorPredictor`] behind the iterative
+//! infilling (SPEC §6.5), and [`ModelInfiller`], the network as an [`Infiller`] beside the
+//! classical methods.
+
+use std::time::{Duration, Instant};
+
+use candle_core::{Device, Tensor};
+
+use crate::infill::{fill_new_regions, InfillContext, InfillError, Infilled, Infiller};
+use crate::iterative::{infill_iteratively, VectorPredictor};
+use crate::model::{IvpNet, NetInput, Variant};
+use crate::prior::prior_for_context;
+use crate::{relative_pose, warp_forward, HoleMask, Image, RgbImage, VectorField};
+use crate::{DepthMap, PixelClass};
+
+/// One frame's inputs to a network at test time.
+#[derive(Clone, Copy, Debug)]
+pub struct FrameInputs<'a> {
+    /// `f^w_{n+1}`, 0 in holes.
+    pub warped: &'a RgbImage,
+    /// `d^w_{n+1}`, 0 in holes.
+    pub warped_depth: &'a DepthMap,
+    pub holes: &'a HoleMask,
+    /// The temporal prior (zeros when there is none).
+    pub prior: &'a VectorField,
+    /// `f_n` and `f^w_n`: read by the intensity variant only (zeros when absent).
+    pub last: Option<&'a RgbImage>,
+    pub last_warped: Option<&'a RgbImage>,
+}
+
+/// What a network predicted for one frame.
+#[derive(Clone, Debug)]
+pub struct ModelPrediction {
+    pub image: RgbImage,
+    /// The vectors each disocclusion pixel was filled with (`None` for the intensity variant).
+    pub vectors: Option<VectorField>,
+    /// Time by stage: `"prior"`, `"network"`, `"infill"`.
+    pub stages: Vec<(&'static str, Duration)>,
+}
+
+impl VectorPredictor for IvpNet {
+    fn predict(&self, prior: &VectorField, depth: &DepthMap, holes: &[bool]) -> Result<VectorField, InfillError> {
+        if !self.config().variant.predicts_vectors() {
+            return Err(InfillError::Other("the intensity variant predicts colours, not vectors".into()));
+        }
+        let (w, h) = (prior.width(), prior.height());
+        let run = || -> candle_core::Result<VectorField> {
+            let mask: Vec<f32> = holes.iter().map(|&b| f32::from(u8::from(b))).collect();
+            let mask = Tensor::from_vec(mask, (1, 1, h, w), &Device::Cpu)?;
+            let prior = to_tensor(prior)?;
+            let depth = to_tensor(depth)?;
+            // The vector variants do not read the warped frame before compositing.
+            let unused = Tensor::zeros((1, 3, h, w), candle_core::DType::F32, &Device::Cpu)?;
+            let input = NetInput {
+                prior: &prior,
+                warped_depth: &depth,
+                mask: &mask,
+                warped: &unused,
+                last: None,
+                last_warped: None,
+            };
+            from_tensor(&self.raw_output(&input)?)
+        };
+        run().map_err(|e| InfillError::Other(format!("network: {e}")))
+    }
+}
+
+/// The frame predicted by `net`: iterative infilling with `iterations` for the vector variants,
+/// one pass for the intensity variant; new regions by the common rule.
+pub fn infill_frame(net: &IvpNet, inputs: &FrameInputs<'_>, iterations: usize) -> Result<RgbImage, InfillError> {
+    Ok(predict_frame(net, inputs, iterations)?.0)
+}
+
+/// [`infill_frame`] with the vectors used and the time inside the network.
+fn predict_frame(
+    net: &IvpNet,
+    inputs: &FrameInputs<'_>,
+    iterations: usize,
+) -> Result<(RgbImage, Option<VectorField>, Duration), InfillError> {
+    if net.config().variant.predicts_vectors() {
+        let out = infill_iteratively(net, inputs.warped, inputs.warped_depth, inputs.holes, inputs.prior, iterations)?;
+        return Ok((out.image, Some(out.vectors), out.predict_time));
+    }
+    let started = Instant::now();
+    let image = predict_intensity(net, inputs).map_err(|e| InfillError::Other(format!("network: {e}")))?;
+    Ok((image, None, started.elapsed()))
+}
+
+/// The intensity variant: the network's colours on the disocclusions, the warp elsewhere.
+fn predict_intensity(net: &IvpNet, inputs: &FrameInputs<'_>) -> candle_core::Result<RgbImage> {
+    let (w, h) = (inputs.warped.width(), inputs.warped.height());
+    let zeros = RgbImage::zeros(w, h);
+    let disocclusions: Vec<f32> =
+        inputs.holes.classes().iter().map(|c| f32::from(u8::from(*c == PixelClass::Disocclusion))).collect();
+    let mask = Tensor::from_vec(disocclusions, (1, 1, h, w), &Device::Cpu)?;
+    let (warped, depth, prior) = (to_tensor(inputs.warped)?, to_tensor(inputs.warped_depth)?, to_tensor(inputs.prior)?);
+    let last = to_tensor(inputs.last.unwrap_or(&zeros))?;
+    let last_warped = to_tensor(inputs.last_warped.unwrap_or(&zeros))?;
+    let input = NetInput {
+        prior: &prior,
+        warped_depth: &depth,
+        mask: &mask,
+        warped: &warped,
+        last: Some(&last),
+        last_warped: Some(&last_warped),
+    };
+    let mut image = from_tensor(&net.forward(&input)?.frame)?;
+    fill_new_regions(&mut image, inputs.holes);
+    Ok(image)
+}
+
+/// A trained network among the infilling methods (`ivp eval --model`).
+#[derive(Clone, Debug)]
+pub struct ModelInfiller {
+    name: String,
+    net: IvpNet,
+    iterations: usize,
+}
+
+impl ModelInfiller {
+    /// `iterations` is P of SPEC §6.5 (ignored by the intensity variant).
+    pub fn new(name: impl Into<String>, net: IvpNet, iterations: usize) -> Self {
+        Self { name: name.into(), net, iterations }
+    }
+
+    pub fn net(&self) -> &IvpNet {
+        &self.net
+    }
+
+    /// The prediction for a context, with the vectors used (SPEC §6.5).
+    pub fn predict(&self, ctx: &InfillContext<'_>) -> Result<ModelPrediction, InfillError> {
+        let warped = ctx.warped;
+        let (w, h) = (warped.image.width(), warped.image.height());
+        let started = Instant::now();
+        let variant = self.net.config().variant;
+        let prior = match variant {
+            // The prior is measured on frame n-2; without it (first frames) the model runs without.
+            Variant::Full | Variant::NoDepth => prior_for_context(ctx).unwrap_or_else(|| VectorField::zeros(w, h)),
+            Variant::NoTemporalPrior | Variant::Intensity => VectorField::zeros(w, h),
+        };
+        let last_warped = match (variant, &ctx.before_last) {
+            (Variant::Intensity, Some(b)) => {
+                Some(warp_forward(b.image, b.depth, ctx.intrinsics, &relative_pose(b.pose, ctx.last.pose)).image)
+            }
+            _ => None,
+        };
+        let prior_time = started.elapsed();
+        let inputs = FrameInputs {
+            warped: &warped.image,
+            warped_depth: &warped.depth,
+            holes: &warped.holes,
+            prior: &prior,
+            last: Some(ctx.last.image),
+            last_warped: last_warped.as_ref(),
+        };
+        let started = Instant::now();
+        let (image, vectors, network_time) = predict_frame(&self.net, &inputs, self.iterations)?;
+        let infill_time = started.elapsed().saturating_sub(network_time);
+        Ok(ModelPrediction {
+            image,
+            vectors,
+            stages: vec![("prior", prior_time), ("network", network_time), ("infill", infill_time)],
+        })
+    }
+}
+
+impl Infiller for ModelInfiller {
+    fn name(&self) -> &str {
+        &self.name
+    }
+
+    fn infill(&self, ctx: &InfillContext<'_>) -> Result<Infilled, InfillError> {
+        let prediction = self.predict(ctx)?;
+        Ok(Infilled { image: prediction.image, stages: prediction.stages })
+    }
+}
+
+/// An image as a (1, C, H, W) tensor.
+pub fn to_tensor<const C: usize>(image: &Image<C>) -> candle_core::Result<Tensor> {
+    let plane = image.len();
+    let mut data = vec![0f32; C * plane];
+    for (c, out) in data.chunks_exact_mut(plane.max(1)).enumerate().take(C) {
+        for (v, p) in out.iter_mut().zip(image.pixels()) {
+            *v = p[c];
+        }
+    }
+    Tensor::from_vec(data, (1, C, image.height(), image.width()), &Device::Cpu)
+}
+
+/// The first image of a (B, C, H, W) tensor.
+pub fn from_tensor<const C: usize>(t: &Tensor) -> candle_core::Result<Image<C>> {
+    let (_, c, h, w) = t.dims4()?;
+    if c != C {
+        candle_core::bail!("expected {C} channels, got {c}");
+    }
+    let data: Vec<f32> = t.get(0)?.flatten_all()?.to_vec1()?;
+    let plane = h * w;
+    let pixels = (0..plane).map(|i| std::array::from_fn(|ch| data[ch * plane + i])).collect();
+    Ok(Image::from_pixels(w, h, pixels))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::model::ModelConfig;
+
+    #[test]
+    fn tensors_and_images_convert_both_ways() {
+        let image = RgbImage::from_pixels(3, 2, (0..6).map(|i| [i as f32, 10.0 + i as f32, 20.0 + i as f32]).collect());
+        let t = to_tensor(&image).unwrap();
+        assert_eq!(t.dims(), [1, 3, 2, 3]);
+        assert_eq!(t.get(0).unwrap().get(1).unwrap().flatten_all().unwrap().to_vec1::<f32>().unwrap()[4], 14.0);
+        assert_eq!(from_tensor::<3>(&t).unwrap(), image);
+    }
+
+    #[test]
+    fn the_network_predicts_vectors_only_on_holes_and_fills_every_hole() {
+        let (net, _) = IvpNet::seeded(ModelConfig { variant: Variant::Full, width_mult: 0.125 }, 1).unwrap();
+        let (w, h) = (23, 17);
+        let classes: Vec<PixelClass> = (0..w * h)
+            .map(|i| match (i % w, i / w) {
+                (8..=10, 3..=12) => PixelClass::Disocclusion,
+                (0, _) => PixelClass::NewRegion,
+                _ => PixelClass::Known,
+            })
+            .collect();
+        let holes = HoleMask::from_classes(w, h, classes);
+        let known = holes.known();
+        let warped = RgbImage::from_pixels(
+            w,
+            h,
+            (0..w * h).map(|i| if known[i] { [0.2, 0.5, (i % w) as f32 / w as f32] } else { [0.0; 3] }).collect(),
+        );
+        let depth = DepthMap::from_pixels(w, h, known.iter().map(|&k| [if k { 5.0 } else { 0.0 }]).collect());
+        let prior = VectorField::zeros(w, h);
+        let vectors = net.predict(&prior, &depth, &holes.disocclusions()).unwrap();
+        for (i, v) in vectors.pixels().iter().enumerate() {
+            if !holes.disocclusions()[i] {
+                assert_eq!(*v, [0.0, 0.0]);
+            }
+        }
+        let inputs = FrameInputs {
+            warped: &warped,
+            warped_depth: &depth,
+            holes: &holes,
+            prior: &prior,
+            last: None,
+            last_warped: None,
+        };
+        let image = infill_frame(&net, &inputs, 3).unwrap();
+        for (i, p) in image.pixels().iter().enumerate() {
+            assert!(p.iter().all(|c| c.is_finite()));
+            if known[i] {
+                assert_eq!(*p, warped.pixels()[i]);
+            } else {
+                // Every hole takes a colour of the known part of this frame (green 0.5).
+                assert!((p[1] - 0.5).abs() < 1e-5, "pixel {i}: {p:?}");
+            }
+        }
+    }
+}

@@ -1,0 +1,1065 @@
+//! Iterative infilling at test time (SPEC §6.5).
+//!
+//! A [`VectorPredictor`] (the network) predicts an infilling vector for every disocclusion pixel
+//! still to fill; each pixel reads colour and depth at the vector's target with the
+//! known-pixels-only bilinear read (SPEC §6.3). In iterations `1..P-1` a vector is kept only if the
+//! depth it reads is at least the pixel's background depth threshold; kept pixels become known
+//! (later iterations may read them, so vectors compose) and their vectors become the prior of the
+//! next prediction. The last iteration keeps every vector, walks the ones that read nothing along
+//! their direction, and falls back to the `fill` rule where even that fails. New regions are filled
+//! by the common rule of SPEC §4.1 at the end.
+//!
+//! Everything is deterministic: each iteration computes the outcome of every hole pixel from the
+//! state before it (in parallel over pixels), then applies them all.
+
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use rayon::prelude::*;
+
+use crate::infill::{
+    background_source, fill_new_regions, InfillContext, InfillError, Infilled, Infiller, NearestKnown, Pixel,
+};
+use crate::prior::{background_depth_threshold, prior_for_context};
+use crate::{DepthMap, HoleMask, Image, PixelClass, RgbImage, VectorField};
+
+/// P of SPEC §6.5: two iterations that keep background vectors only, then the last.
+pub const DEFAULT_ITERATIONS: usize = 3;
+
+/// The largest magnitude, in pixels, that the last iteration tries along a vector's direction.
+pub const MAX_WALK_MAGNITUDE: usize = 100;
+
+/// Hole pixels per rayon task when deciding the outcomes of an iteration.
+const PIXELS_PER_TASK: usize = 256;
+
+// ---------------------------------------------------------------------------------------------
+// The predictor
+// ---------------------------------------------------------------------------------------------
+
+/// The neural network behind infilling vector prediction, on whole images.
+pub trait VectorPredictor: Send + Sync {
+    /// Infilling vectors for the pixels marked in `holes`.
+    ///
+    /// - `prior`: the temporal prior (zeros where there is none); in later iterations it also
+    ///   holds the vectors kept so far at the pixels they filled.
+    /// - `depth`: the warped depth, 0 at every pixel not known yet (holes still to fill and new
+    ///   regions); pixels filled by earlier iterations hold the depth they read.
+    /// - `holes`: row-major, `true` = a disocclusion pixel still to fill. Never all `false`: the
+    ///   predictor is not called when there is nothing to predict.
+    ///
+    /// Returns vectors in pixels (channel 0 = column offset, 1 = row offset), of the size of
+    /// `depth`. Values outside `holes` are ignored (they should be zero).
+    fn predict(&self, prior: &VectorField, depth: &DepthMap, holes: &[bool]) -> Result<VectorField, InfillError>;
+}
+
+impl<T: VectorPredictor + ?Sized> VectorPredictor for &T {
+    fn predict(&self, prior: &VectorField, depth: &DepthMap, holes: &[bool]) -> Result<VectorField, InfillError> {
+        (**self).predict(prior, depth, holes)
+    }
+}
+
+impl<T: VectorPredictor + ?Sized> VectorPredictor for Box<T> {
+    fn predict(&self, prior: &VectorField, depth: &DepthMap, holes: &[bool]) -> Result<VectorField, InfillError> {
+        (**self).predict(prior, depth, holes)
+    }
+}
+
+impl<T: VectorPredictor + ?Sized> VectorPredictor for Arc<T> {
+    fn predict(&self, prior: &VectorField, depth: &DepthMap, holes: &[bool]) -> Result<VectorField, InfillError> {
+        (**self).predict(prior, depth, holes)
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Known-pixels-only bilinear read, for any number of channels
+// ---------------------------------------------------------------------------------------------
+
+/// The corners of a known-pixels-only bilinear read (SPEC §6.3) and their weights, found once so
+/// that colour, depth and any other field can be read with the same weights.
+#[derive(Clone, Copy, Debug)]
+struct KnownRead {
+    /// Pixel index and bilinear weight of each corner taken, in the order of
+    /// [`crate::infill::sample_known_bilinear`].
+    corners: [(usize, f32); 4],
+    count: usize,
+    total_weight: f32,
+}
+
+impl KnownRead {
+    /// The corners of the read at `(x, y)` that are inside the `width` x `height` frame, known and
+    /// of positive weight; `None` when there is none or `(x, y)` is not finite.
+    #[inline]
+    fn at(width: usize, height: usize, known: &[bool], x: f32, y: f32) -> Option<Self> {
+        if !(x.is_finite() && y.is_finite()) {
+            return None;
+        }
+        let (x0, y0) = (x.floor(), y.floor());
+        let (ax, ay) = (x - x0, y - y0);
+        let weights = [
+            (0.0, 0.0, (1.0 - ax) * (1.0 - ay)),
+            (1.0, 0.0, ax * (1.0 - ay)),
+            (0.0, 1.0, (1.0 - ax) * ay),
+            (1.0, 1.0, ax * ay),
+        ];
+        let (w, h) = (width as f32, height as f32);
+        let mut read = Self { corners: [(0, 0.0); 4], count: 0, total_weight: 0.0 };
+        for (dx, dy, weight) in weights {
+            let (cx, cy) = (x0 + dx, y0 + dy);
+            // Range checks on floats first: the casts below must never see a huge value.
+            if weight <= 0.0 || !(cx >= 0.0 && cx < w && cy >= 0.0 && cy < h) {
+                continue;
+            }
+            let i = cy as usize * width + cx as usize;
+            if !known[i] {
+                continue;
+            }
+            read.corners[read.count] = (i, weight);
+            read.count += 1;
+            read.total_weight += weight;
+        }
+        (read.total_weight > 0.0).then_some(read)
+    }
+
+    /// The weighted mean of `image` over the corners (same operations, so the same bits, as
+    /// [`crate::infill::sample_known_bilinear`]).
+    #[inline]
+    fn read<const C: usize>(&self, image: &Image<C>) -> [f32; C] {
+        let pixels = image.pixels();
+        self.read_by(|i| pixels[i])
+    }
+
+    /// [`Self::read`] of the values `value(pixel index)`.
+    #[inline]
+    fn read_by<const C: usize>(&self, value: impl Fn(usize) -> [f32; C]) -> [f32; C] {
+        let mut sum = [0f32; C];
+        for &(i, weight) in &self.corners[..self.count] {
+            for (s, c) in sum.iter_mut().zip(value(i)) {
+                *s += weight * c;
+            }
+        }
+        sum.map(|s| s / self.total_weight)
+    }
+}
+
+/// [`crate::infill::sample_known_bilinear`] for an image of any number of channels (depth maps,
+/// vector fields): the bilinear read of `image` at `(x, y)` over the known in-frame corners, with
+/// the weights renormalised over them. `None` when no corner remains or `(x, y)` is not finite.
+pub fn sample_known<const C: usize>(image: &Image<C>, known: &[bool], x: f32, y: f32) -> Option<[f32; C]> {
+    assert_eq!(known.len(), image.len(), "known mask does not match the image");
+    KnownRead::at(image.width(), image.height(), known, x, y).map(|read| read.read(image))
+}
+
+// ---------------------------------------------------------------------------------------------
+// Iterative infilling
+// ---------------------------------------------------------------------------------------------
+
+/// The result of [`infill_iteratively`].
+#[derive(Clone, Debug)]
+pub struct IterativeInfill {
+    /// The whole frame: known pixels as warped, disocclusions infilled, new regions by the common
+    /// rule of SPEC §4.1.
+    pub image: RgbImage,
+    /// Per disocclusion pixel, the vector it was filled with, from the pixel to the position it
+    /// read in the iteration that filled it (which may be a pixel filled earlier): the predicted
+    /// vector, or in the last iteration the rescaled one when it had to walk. Pixels that fell
+    /// back to `fill` hold the vector to the pixel `fill` copied (zero if none). Zero elsewhere.
+    pub vectors: VectorField,
+    /// [`Self::vectors`] composed through the iterations: from each disocclusion pixel to the
+    /// (bilinearly averaged) position among the originally known pixels that its colour comes
+    /// from. Equal to `vectors` for pixels that read originally known pixels only.
+    pub composed_vectors: VectorField,
+    /// Disocclusion pixels filled by each iteration (`len() == iterations`); the last entry counts
+    /// the walked and fallen-back pixels too. Iterations that had nothing left to fill count 0.
+    pub filled_per_iteration: Vec<usize>,
+    /// Pixels of the last iteration whose own target had no known corner, that found one along
+    /// their direction.
+    pub walked: usize,
+    /// Pixels of the last iteration that found no known pixel along their direction (or had a
+    /// zero or non-finite vector) and took the `fill` value.
+    pub fell_back: usize,
+    /// How many times the predictor was called.
+    pub predictions: usize,
+    /// Time spent inside [`VectorPredictor::predict`].
+    pub predict_time: Duration,
+    /// Time spent in everything else (thresholds, reads, bookkeeping, new regions).
+    pub other_time: Duration,
+}
+
+/// What happens to one hole pixel in one iteration.
+#[derive(Clone, Copy, Debug)]
+enum Outcome {
+    /// Still a hole after this iteration.
+    Hole,
+    /// Filled by reading at `pixel + vector`.
+    Read { vector: [f32; 2], colour: [f32; 3], depth: f32, source: [f32; 2], walked: bool },
+    /// The last iteration found nothing to read: the `fill` value.
+    Fill,
+}
+
+/// What the reads of one iteration see: it changes between iterations only.
+struct State<'a> {
+    width: usize,
+    height: usize,
+    /// Known pixels as warped, filled pixels as read.
+    image: &'a RgbImage,
+    /// Warped depth, 0 where not known (the predictor's input), filled pixels as read.
+    depth: &'a DepthMap,
+    known: &'a [bool],
+    original_known: &'a [bool],
+    /// For each filled pixel, the position among the originally known pixels its colour comes
+    /// from: the composition of the vectors (an originally known pixel is its own source).
+    source: &'a [[f32; 2]],
+}
+
+impl State<'_> {
+    /// Colour, depth and composed source of a read.
+    #[inline]
+    fn read(&self, read: &KnownRead) -> ([f32; 3], f32, [f32; 2]) {
+        let w = self.width;
+        let source =
+            read.read_by(|i| if self.original_known[i] { [(i % w) as f32, (i / w) as f32] } else { self.source[i] });
+        (read.read(self.image), read.read(self.depth)[0], source)
+    }
+}
+
+fn size_error(what: &str, w: usize, h: usize, width: usize, height: usize) -> InfillError {
+    InfillError::Other(format!("{what} is {w}x{h} but the warped frame is {width}x{height}"))
+}
+
+/// SPEC §6.5 on the disocclusion pixels of `holes`, then the common new-region rule (SPEC §4.1)
+/// so that the whole frame is filled.
+///
+/// - The background depth threshold of each disocclusion pixel is computed once, on the original
+///   known mask and `warped_depth` ([`background_depth_threshold`]).
+/// - Iterations `1..P-1`: predict; read colour and depth at each vector's target over the known
+///   corners; keep the vector if a corner was found and the depth read is at least the threshold
+///   (no threshold: keep). Kept pixels become known with the colour and depth read, and their
+///   vector replaces the prior at that pixel for the next prediction (the prior elsewhere,
+///   including at rejected pixels, is left as it was).
+/// - Last iteration: keep every vector. One whose target has no known corner keeps its direction
+///   and takes the smallest magnitude `m` in `1..=100` (whole pixels, increasing) at which the read
+///   finds a known corner. A pixel whose vector is zero or not finite, or finds nothing, takes the
+///   `fill` value: the pixel [`background_source`] picks on the original known mask and
+///   `warped_depth` (left as warped if there is none).
+/// - Within an iteration all pixels read the state before it; across iterations reads compose (a
+///   pixel filled in iteration 2 may read one filled in 1).
+///
+/// `P = iterations` must be at least 1 (`P = 1` is the last-iteration rule alone). The predictor
+/// is not called once no disocclusion pixel is left (so never for a frame without any).
+/// `prior` is the temporal prior, zeros where there is none.
+pub fn infill_iteratively(
+    predictor: &dyn VectorPredictor,
+    warped: &RgbImage,
+    warped_depth: &DepthMap,
+    holes: &HoleMask,
+    prior: &VectorField,
+    iterations: usize,
+) -> Result<IterativeInfill, InfillError> {
+    let start = Instant::now();
+    let (w, h) = (warped.width(), warped.height());
+    if iterations == 0 {
+        return Err(InfillError::Other("iterative infilling needs at least one iteration".into()));
+    }
+    if !warped_depth.same_size(warped) {
+        return Err(size_error("the warped depth", warped_depth.width(), warped_depth.height(), w, h));
+    }
+    if holes.width() != w || holes.height() != h {
+        return Err(size_error("the hole mask", holes.width(), holes.height(), w, h));
+    }
+    if !prior.same_size(warped) {
+        return Err(size_error("the prior", prior.width(), prior.height(), w, h));
+    }
+
+    let classes = holes.classes();
+    let mut remaining: Vec<usize> =
+        (0..classes.len()).into_par_iter().filter(|&i| classes[i] == PixelClass::Disocclusion).collect();
+    let mut out = IterativeInfill {
+        image: warped.clone(),
+        vectors: VectorField::zeros(w, h),
+        composed_vectors: VectorField::zeros(w, h),
+        filled_per_iteration: vec![0; iterations],
+        walked: 0,
+        fell_back: 0,
+        predictions: 0,
+        predict_time: Duration::ZERO,
+        other_time: Duration::ZERO,
+    };
+
+    if !remaining.is_empty() {
+        let original_known = holes.known();
+        let thresholds = background_depth_threshold(&original_known, warped_depth);
+        let mut depth_map = warped_depth.clone();
+        depth_map.pixels_mut().par_iter_mut().zip(&original_known).for_each(|(z, &k)| {
+            if !k {
+                *z = [0.0];
+            }
+        });
+        let mut known = original_known.clone();
+        let mut sources = vec![[0f32; 2]; w * h];
+        let mut prior = prior.clone();
+        let mut to_fill = vec![false; w * h];
+        for &i in &remaining {
+            to_fill[i] = true;
+        }
+        for (iteration, filled) in out.filled_per_iteration.iter_mut().enumerate() {
+            if remaining.is_empty() {
+                break;
+            }
+            let last = iteration + 1 == iterations;
+            let predict_start = Instant::now();
+            let predicted = predictor.predict(&prior, &depth_map, &to_fill)?;
+            out.predict_time += predict_start.elapsed();
+            out.predictions += 1;
+            if !predicted.same_size(warped) {
+                return Err(size_error("the predicted vector field", predicted.width(), predicted.height(), w, h));
+            }
+
+            let state = State {
+                width: w,
+                height: h,
+                image: &out.image,
+                depth: &depth_map,
+                known: &known,
+                original_known: &original_known,
+                source: &sources,
+            };
+            let outcomes: Vec<Outcome> = remaining
+                .par_iter()
+                .with_min_len(PIXELS_PER_TASK)
+                .map(|&i| {
+                    let vector = predicted.pixels()[i];
+                    if last {
+                        last_outcome(&state, (i % w, i / w), vector)
+                    } else {
+                        early_outcome(&state, (i % w, i / w), vector, thresholds[i])
+                    }
+                })
+                .collect();
+
+            // `fill` sources only when some pixel needs one (the search structure costs a frame).
+            let nearest =
+                outcomes.iter().any(|o| matches!(o, Outcome::Fill)).then(|| NearestKnown::new(w, h, &original_known));
+            let mut still_holes = Vec::new();
+            for (&i, outcome) in remaining.iter().zip(&outcomes) {
+                let p = (i % w, i / w);
+                let offset = |[x, y]: [f32; 2]| [x - p.0 as f32, y - p.1 as f32];
+                match *outcome {
+                    Outcome::Hole => {
+                        still_holes.push(i);
+                        continue;
+                    }
+                    Outcome::Read { vector, colour, depth, source, walked } => {
+                        out.image.pixels_mut()[i] = colour;
+                        out.vectors.pixels_mut()[i] = vector;
+                        out.composed_vectors.pixels_mut()[i] = offset(source);
+                        out.walked += usize::from(walked);
+                        depth_map.pixels_mut()[i] = [depth];
+                        sources[i] = source;
+                        prior.pixels_mut()[i] = vector;
+                    }
+                    Outcome::Fill => {
+                        let nearest = nearest.as_ref().expect("built when some pixel falls back");
+                        if let Some(q) = background_source(nearest, warped_depth, p) {
+                            let to_source = offset([q.0 as f32, q.1 as f32]);
+                            out.image.pixels_mut()[i] = warped.get(q.0, q.1);
+                            out.vectors.pixels_mut()[i] = to_source;
+                            out.composed_vectors.pixels_mut()[i] = to_source;
+                        }
+                        out.fell_back += 1;
+                    }
+                }
+                known[i] = true;
+                to_fill[i] = false;
+                *filled += 1;
+            }
+            remaining = still_holes;
+        }
+        debug_assert!(remaining.is_empty(), "the last iteration fills every pixel");
+    }
+
+    fill_new_regions(&mut out.image, holes);
+    out.other_time = start.elapsed().saturating_sub(out.predict_time);
+    Ok(out)
+}
+
+/// Iterations `1..P-1`: keep the vector if it reads a known corner at depth >= the threshold.
+#[inline]
+fn early_outcome(state: &State, p: Pixel, vector: [f32; 2], threshold: Option<f32>) -> Outcome {
+    let (x, y) = (p.0 as f32 + vector[0], p.1 as f32 + vector[1]);
+    let Some(read) = KnownRead::at(state.width, state.height, state.known, x, y) else { return Outcome::Hole };
+    let [depth] = read.read(state.depth);
+    // A NaN depth fails the comparison: never kept against a threshold.
+    let keep = threshold.is_none_or(|t| depth >= t);
+    if !keep {
+        return Outcome::Hole;
+    }
+    let (colour, depth, source) = state.read(&read);
+    Outcome::Read { vector, colour, depth, source, walked: false }
+}
+
+/// The last iteration: the vector as it is, else walked along its direction, else `fill`.
+#[inline]
+fn last_outcome(state: &State, p: Pixel, vector: [f32; 2]) -> Outcome {
+    let read_at = |vector: [f32; 2], walked: bool| {
+        let (x, y) = (p.0 as f32 + vector[0], p.1 as f32 + vector[1]);
+        let read = KnownRead::at(state.width, state.height, state.known, x, y)?;
+        let (colour, depth, source) = state.read(&read);
+        Some(Outcome::Read { vector, colour, depth, source, walked })
+    };
+    if let Some(outcome) = read_at(vector, false) {
+        return outcome;
+    }
+    let [a, b] = vector.map(f64::from);
+    let length = a.hypot(b);
+    // In f64 the length of any finite f32 vector is finite; zero or NaN has no direction.
+    if !(length.is_finite() && length > 0.0) {
+        return Outcome::Fill;
+    }
+    let (da, db) = (a / length, b / length);
+    (1..=MAX_WALK_MAGNITUDE)
+        .find_map(|m| read_at([(m as f64 * da) as f32, (m as f64 * db) as f32], true))
+        .unwrap_or(Outcome::Fill)
+}
+
+// ---------------------------------------------------------------------------------------------
+// The infiller
+// ---------------------------------------------------------------------------------------------
+
+/// Infilling vector prediction as an [`Infiller`]: the temporal prior of the context
+/// ([`prior_for_context`], zeros without frame `n-2`), then [`infill_iteratively`] on the shared
+/// warp. Stages: `"prior"`, `"network"` (inside the predictor), `"infill"` (the rest).
+#[derive(Clone, Debug)]
+pub struct IterativeInfiller<P> {
+    name: String,
+    predictor: P,
+    iterations: usize,
+}
+
+impl<P: VectorPredictor> IterativeInfiller<P> {
+    /// `iterations` is P of SPEC §6.5 ([`DEFAULT_ITERATIONS`]); 0 makes every `infill` fail.
+    pub fn new(name: impl Into<String>, predictor: P, iterations: usize) -> Self {
+        Self { name: name.into(), predictor, iterations }
+    }
+
+    pub fn predictor(&self) -> &P {
+        &self.predictor
+    }
+
+    pub fn iterations(&self) -> usize {
+        self.iterations
+    }
+
+    /// [`infill_iteratively`] on the context's warp with the context's prior, returning the full
+    /// result (vectors, counts) rather than just the image, and the time of the prior.
+    pub fn infill_detailed(&self, ctx: &InfillContext<'_>) -> Result<(IterativeInfill, Duration), InfillError> {
+        let warped = ctx.warped;
+        let prior_start = Instant::now();
+        let prior =
+            prior_for_context(ctx).unwrap_or_else(|| VectorField::zeros(warped.image.width(), warped.image.height()));
+        let prior_time = prior_start.elapsed();
+        let result =
+            infill_iteratively(&self.predictor, &warped.image, &warped.depth, &warped.holes, &prior, self.iterations)?;
+        Ok((result, prior_time))
+    }
+}
+
+impl<P: VectorPredictor> Infiller for IterativeInfiller<P> {
+    fn name(&self) -> &str {
+        &self.name
+    }
+
+    fn infill(&self, ctx: &InfillContext<'_>) -> Result<Infilled, InfillError> {
+        let (result, prior_time) = self.infill_detailed(ctx)?;
+        Ok(Infilled {
+            image: result.image,
+            stages: vec![("prior", prior_time), ("network", result.predict_time), ("infill", result.other_time)],
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use std::sync::Mutex;
+
+    use super::*;
+    use crate::image::is_valid_depth;
+    use crate::infill::{fill_disocclusions_background, sample_known_bilinear, test_scene, Direction, FrameView};
+    use crate::{relative_pose, warp_forward, Intrinsics, Warp, WorldToCamera};
+
+    /// A predictor made of a closure.
+    struct FnPredictor<F>(F);
+
+    impl<F> VectorPredictor for FnPredictor<F>
+    where
+        F: Fn(&VectorField, &DepthMap, &[bool]) -> VectorField + Send + Sync,
+    {
+        fn predict(&self, prior: &VectorField, depth: &DepthMap, holes: &[bool]) -> Result<VectorField, InfillError> {
+            Ok((self.0)(prior, depth, holes))
+        }
+    }
+
+    /// The inputs of one call to a predictor.
+    #[derive(Clone, Debug)]
+    struct Call {
+        prior: VectorField,
+        depth: DepthMap,
+        holes: Vec<bool>,
+    }
+
+    /// Wraps a predictor and records every call.
+    struct Recording<P> {
+        inner: P,
+        calls: Mutex<Vec<Call>>,
+    }
+
+    impl<P> Recording<P> {
+        fn new(inner: P) -> Self {
+            Self { inner, calls: Mutex::new(Vec::new()) }
+        }
+
+        fn calls(&self) -> Vec<Call> {
+            self.calls.lock().unwrap().clone()
+        }
+    }
+
+    impl<P: VectorPredictor> VectorPredictor for Recording<P> {
+        fn predict(&self, prior: &VectorField, depth: &DepthMap, holes: &[bool]) -> Result<VectorField, InfillError> {
+            assert!(holes.iter().any(|&h| h), "called with nothing to predict");
+            self.calls.lock().unwrap().push(Call { prior: prior.clone(), depth: depth.clone(), holes: holes.to_vec() });
+            self.inner.predict(prior, depth, holes)
+        }
+    }
+
+    /// Applies `f(u, v)` at every pixel of `holes`, zero elsewhere.
+    fn on_holes(depth: &DepthMap, holes: &[bool], f: impl Fn(usize, usize) -> [f32; 2]) -> VectorField {
+        let w = depth.width();
+        Image::from_fn(w, depth.height(), |u, v| if holes[v * w + u] { f(u, v) } else { [0.0, 0.0] })
+    }
+
+    /// Every hole pixel points to the nearest pixel along `dir` that is known now (the predictor
+    /// sees the known mask as the pixels of valid depth); zero if there is none.
+    fn to_nearest_known(dir: Direction) -> FnPredictor<impl Fn(&VectorField, &DepthMap, &[bool]) -> VectorField> {
+        FnPredictor(move |_: &VectorField, depth: &DepthMap, holes: &[bool]| {
+            let known: Vec<bool> = depth.pixels().iter().map(|&[z]| is_valid_depth(z)).collect();
+            let nearest = NearestKnown::new(depth.width(), depth.height(), &known);
+            on_holes(depth, holes, |u, v| {
+                nearest.beyond((u, v), dir).map_or([0.0, 0.0], |(su, sv)| [su as f32 - u as f32, sv as f32 - v as f32])
+            })
+        })
+    }
+
+    /// Every hole pixel gets `vector`.
+    fn constant(vector: [f32; 2]) -> FnPredictor<impl Fn(&VectorField, &DepthMap, &[bool]) -> VectorField> {
+        FnPredictor(move |_: &VectorField, depth: &DepthMap, holes: &[bool]| on_holes(depth, holes, |_, _| vector))
+    }
+
+    /// Every hole pixel gets the vector `f(u, v)`.
+    fn per_pixel(
+        f: impl Fn(usize, usize) -> [f32; 2] + Send + Sync,
+    ) -> FnPredictor<impl Fn(&VectorField, &DepthMap, &[bool]) -> VectorField> {
+        FnPredictor(move |_: &VectorField, depth: &DepthMap, holes: &[bool]| on_holes(depth, holes, &f))
+    }
+
+    fn run(predictor: &dyn VectorPredictor, warp: &Warp, prior: &VectorField, iterations: usize) -> IterativeInfill {
+        infill_iteratively(predictor, &warp.image, &warp.depth, &warp.holes, prior, iterations).unwrap()
+    }
+
+    fn zero_prior(warp: &Warp) -> VectorField {
+        VectorField::zeros(warp.image.width(), warp.image.height())
+    }
+
+    /// The output of the classical `fill` method on a warp.
+    fn fill_of(warp: &Warp) -> RgbImage {
+        let mut image = warp.image.clone();
+        fill_disocclusions_background(&mut image, &warp.depth, &warp.holes);
+        fill_new_regions(&mut image, &warp.holes);
+        image
+    }
+
+    fn disocclusions(warp: &Warp) -> Vec<Pixel> {
+        let (w, h) = (warp.image.width(), warp.image.height());
+        (0..h).flat_map(|v| (0..w).map(move |u| (u, v))).filter(|&(u, v)| warp.holes.is_disocclusion(u, v)).collect()
+    }
+
+    fn assert_all_finite(image: &RgbImage) {
+        assert!(image.as_flat().iter().all(|x| x.is_finite()), "non-finite pixel");
+    }
+
+    /// A warp with the given image, depth and known mask, as the warper would return it (black,
+    /// depth 0 at holes).
+    fn warp_of(
+        image: impl Fn(usize, usize) -> [f32; 3],
+        depth: impl Fn(usize, usize) -> f32,
+        known: &[bool],
+        w: usize,
+        h: usize,
+    ) -> Warp {
+        let k = |u: usize, v: usize| known[v * w + u];
+        let image = Image::from_fn(w, h, |u, v| if k(u, v) { image(u, v) } else { [0.0; 3] });
+        let depth = Image::from_fn(w, h, |u, v| [if k(u, v) { depth(u, v) } else { 0.0 }]);
+        Warp { image, depth, holes: HoleMask::classify(w, h, known) }
+    }
+
+    /// A distinct colour per pixel, so that a copy says where it came from.
+    fn labelled(u: usize, v: usize) -> [f32; 3] {
+        [u as f32 / 128.0, v as f32 / 64.0, 0.5]
+    }
+
+    /// The box scene of `infill.rs`: frame n at camera x = 0.2 warped to the target at x = 0.3.
+    /// The camera moves right, so the wall is uncovered on the right of the box.
+    struct BoxScene {
+        k: Intrinsics,
+        before_last: (RgbImage, DepthMap, WorldToCamera),
+        last: (RgbImage, DepthMap, WorldToCamera),
+        target: (RgbImage, DepthMap, WorldToCamera),
+        warped: Warp,
+    }
+
+    fn view(frame: &(RgbImage, DepthMap, WorldToCamera)) -> FrameView<'_> {
+        FrameView { image: &frame.0, depth: &frame.1, pose: &frame.2 }
+    }
+
+    impl BoxScene {
+        fn new() -> Self {
+            let k = test_scene::intrinsics();
+            let before_last = test_scene::render(0.1);
+            let last = test_scene::render(0.2);
+            let target = test_scene::render(0.3);
+            let warped = warp_forward(&last.0, &last.1, &k, &relative_pose(&last.2, &target.2));
+            Self { k, before_last, last, target, warped }
+        }
+
+        fn context(&self, with_before_last: bool) -> InfillContext<'_> {
+            InfillContext {
+                intrinsics: &self.k,
+                last: view(&self.last),
+                before_last: with_before_last.then(|| view(&self.before_last)),
+                target_pose: &self.target.2,
+                warped: &self.warped,
+                ground_truth: None,
+            }
+        }
+    }
+
+    #[test]
+    fn generic_known_read_matches_the_rgb_one_bit_for_bit() {
+        let (w, h) = (9, 6);
+        let image = Image::from_fn(w, h, |u, v| [(u * 7 + v) as f32 * 0.013, (u + 3 * v) as f32 * 0.1, 0.3]);
+        let depth = Image::from_fn(w, h, |u, v| [1.0 + (u * v) as f32 * 0.37]);
+        let known: Vec<bool> = (0..w * h).map(|i| i % 3 != 1 && i % 7 != 2).collect();
+        let mut state = 7u32;
+        let mut random = move || {
+            state = state.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
+            (state >> 8) as f32 / (1 << 24) as f32
+        };
+        for _ in 0..2000 {
+            let (x, y) = (random() * 11.0 - 1.0, random() * 8.0 - 1.0);
+            let rgb = sample_known_bilinear(&image, &known, x, y);
+            assert_eq!(sample_known(&image, &known, x, y), rgb, "({x}, {y})");
+            // Depth reads with the same corners and weights: present exactly when colour is.
+            let z = sample_known(&depth, &known, x, y);
+            assert_eq!(z.is_some(), rgb.is_some());
+        }
+        // Exactly on a pixel: that pixel.
+        assert_eq!(sample_known(&depth, &vec![true; w * h], 3.0, 2.0), Some(depth.get(3, 2)));
+        assert_eq!(sample_known(&depth, &known, f32::NAN, 2.0), None);
+    }
+
+    #[test]
+    fn background_vectors_reproduce_fill_on_the_box_scene() {
+        let scene = BoxScene::new();
+        let warp = &scene.warped;
+        let holes = disocclusions(warp);
+        assert!(holes.len() > 50, "the scene should open a disocclusion, got {}", holes.len());
+        let fill = fill_of(warp);
+        // `fill` recovers the truth there (wall stripes run along rows), so matching it is the best.
+        for &(u, v) in &holes {
+            assert_eq!(fill.get(u, v), scene.target.0.get(u, v), "({u}, {v})");
+        }
+        for iterations in [1, 2, 3, 5] {
+            let predictor = Recording::new(to_nearest_known(Direction::Right));
+            let out = run(&predictor, warp, &zero_prior(warp), iterations);
+            assert_eq!(out.image, fill, "P = {iterations}");
+            // Everything is background: all kept in the first iteration (also when it is the last).
+            let mut want = vec![0; iterations];
+            want[0] = holes.len();
+            assert_eq!(out.filled_per_iteration, want, "P = {iterations}");
+            assert_eq!((out.walked, out.fell_back, out.predictions), (0, 0, 1));
+            assert_eq!(predictor.calls().len(), 1);
+            for &(u, v) in &holes {
+                let [a, b] = out.vectors.get(u, v);
+                assert!(a >= 1.0 && b == 0.0 && warp.holes.is_known(u + a as usize, v), "({u}, {v}): {a}, {b}");
+                assert_eq!(out.composed_vectors.get(u, v), [a, b]);
+            }
+        }
+    }
+
+    #[test]
+    fn foreground_vectors_are_rejected_until_the_last_iteration() {
+        let scene = BoxScene::new();
+        let warp = &scene.warped;
+        let holes = disocclusions(warp);
+        // The box is on the left of the uncovered wall.
+        for iterations in [1, 2, 3] {
+            let predictor = Recording::new(to_nearest_known(Direction::Left));
+            let out = run(&predictor, warp, &zero_prior(warp), iterations);
+            let mut want = vec![0; iterations];
+            want[iterations - 1] = holes.len();
+            assert_eq!(out.filled_per_iteration, want, "P = {iterations}");
+            let calls = predictor.calls();
+            assert_eq!(calls.len(), iterations);
+            // Rejected every time: the same holes, depth and prior in every call.
+            for call in &calls {
+                assert_eq!(call.holes, warp.holes.disocclusions());
+                assert_eq!(call.depth, warp.depth);
+                assert_eq!(call.prior, zero_prior(warp));
+            }
+            // The last iteration keeps them: the box colour, as predicted.
+            for &(u, v) in &holes {
+                assert_eq!(out.image.get(u, v), test_scene::BOX_COLOUR, "P = {iterations} at ({u}, {v})");
+            }
+            assert_eq!((out.walked, out.fell_back), (0, 0));
+        }
+        // Half the pixels right, half left: the right ones are kept at once, the left ones at the end.
+        let predictor = Recording::new(FnPredictor(|prior: &VectorField, depth: &DepthMap, holes: &[bool]| {
+            let right = to_nearest_known(Direction::Right).predict(prior, depth, holes).unwrap();
+            let left = to_nearest_known(Direction::Left).predict(prior, depth, holes).unwrap();
+            Image::from_fn(
+                depth.width(),
+                depth.height(),
+                |u, v| if v % 2 == 0 { right.get(u, v) } else { left.get(u, v) },
+            )
+        }));
+        let out = run(&predictor, warp, &zero_prior(warp), 3);
+        let even = holes.iter().filter(|(_, v)| v % 2 == 0).count();
+        assert_eq!(out.filled_per_iteration, [even, 0, holes.len() - even]);
+        let fill = fill_of(warp);
+        for &(u, v) in &holes {
+            let want = if v % 2 == 0 { fill.get(u, v) } else { test_scene::BOX_COLOUR };
+            assert_eq!(out.image.get(u, v), want, "({u}, {v})");
+        }
+    }
+
+    /// 12x9, disocclusion block at columns 4..=7, rows 3..=5. Left of it depth 1 (foreground),
+    /// right of it depth 5 (background), elsewhere 3: `fill` copies the right neighbour.
+    fn block_scene() -> Warp {
+        let (w, h) = (12, 9);
+        let is_hole = |u: usize, v: usize| (4..=7).contains(&u) && (3..=5).contains(&v);
+        let known: Vec<bool> = (0..w * h).map(|i| !is_hole(i % w, i / w)).collect();
+        let depth = |u: usize, v: usize| {
+            if (3..=5).contains(&v) && u < 4 {
+                1.0
+            } else if (3..=5).contains(&v) && u > 7 {
+                5.0
+            } else {
+                3.0
+            }
+        };
+        warp_of(labelled, depth, &known, w, h)
+    }
+
+    #[test]
+    fn degenerate_vectors_take_the_fill_value() {
+        let warp = block_scene();
+        let holes = disocclusions(&warp);
+        assert_eq!(holes.len(), 12);
+        let fill = fill_of(&warp);
+        for (u, v) in holes.iter().copied() {
+            assert_eq!(fill.get(u, v), labelled(8, v), "fill copies the right neighbour");
+        }
+        for iterations in [1, 2, 3] {
+            for vector in [[f32::NAN, 0.0], [0.0, f32::NAN], [f32::INFINITY, 0.0], [f32::NEG_INFINITY, 1.0], [0.0, 0.0]]
+            {
+                let out = run(&constant(vector), &warp, &zero_prior(&warp), iterations);
+                assert_all_finite(&out.image);
+                assert_eq!(out.image, fill, "{vector:?}, P = {iterations}");
+                assert_eq!(out.fell_back, holes.len());
+                assert_eq!(out.filled_per_iteration[iterations - 1], holes.len());
+                // The vectors say where `fill` copied from.
+                for &(u, v) in &holes {
+                    assert_eq!(out.vectors.get(u, v), [8.0 - u as f32, 0.0]);
+                }
+            }
+            // Huge vectors read nothing, so they walk: towards the background side that is the
+            // pixel `fill` copies (depth 5 passes the threshold, but only a read can pass it).
+            let out = run(&constant([1e6, 0.0]), &warp, &zero_prior(&warp), iterations);
+            assert_eq!(out.image, fill, "P = {iterations}");
+            assert_eq!((out.walked, out.fell_back), (holes.len(), 0));
+            assert_eq!(out.filled_per_iteration[iterations - 1], holes.len());
+            // Towards the foreground, the walk reads the foreground: the vector's direction rules.
+            let out = run(&constant([-1e6, 0.0]), &warp, &zero_prior(&warp), iterations);
+            for &(u, v) in &holes {
+                assert_eq!(out.image.get(u, v), labelled(3, v));
+                assert_eq!(out.vectors.get(u, v), [3.0 - u as f32, 0.0]);
+            }
+            for vector in [[1e6, 1e6], [f32::MAX, -f32::MAX], [-1e-30, 1e-30], [f32::MIN_POSITIVE, 0.0]] {
+                let out = run(&constant(vector), &warp, &zero_prior(&warp), iterations);
+                assert_all_finite(&out.image);
+                assert!(out.vectors.as_flat().iter().all(|x| x.is_finite()));
+                assert_eq!(out.fell_back, 0, "{vector:?}: every hole sees a known pixel within 100 px");
+            }
+        }
+    }
+
+    #[test]
+    fn walk_takes_the_smallest_magnitude_that_reads_a_known_pixel() {
+        // 120x5: row 2 is a hole from column 1 to 110 (known: column 0 and 111..). Wider than
+        // tall, so a bounds check on the wrong axis would fail here.
+        let (w, h) = (120, 5);
+        let known: Vec<bool> = (0..w * h).map(|i| !(i / w == 2 && (1..=110).contains(&(i % w)))).collect();
+        let warp = warp_of(labelled, |_, _| 2.0, &known, w, h);
+        assert_eq!(warp.holes.count(PixelClass::Disocclusion), 110);
+        let vectors = |u: usize, _| match u {
+            // Target (22, 2) is a hole: walk right to column 111 (magnitude 91).
+            20 => [2.0, 0.0],
+            // Target between two holes: walk to column 111 (magnitude 61).
+            50 => [0.5, 0.0],
+            // Column 111 is 108 away: beyond 100, so `fill`.
+            3 => [1.0, 0.0],
+            // Left: (1, 2) is a hole, (0, 2) known at magnitude 2.
+            2 => [-0.5, 0.0],
+            // Reads its target directly: the bilinear mix of (0, 2) and its hole neighbour is (0, 2).
+            1 => [-0.75, 0.0],
+            // Straight up: row 1 is known.
+            60 => [0.0, -7.0],
+            _ => [0.0, 0.0],
+        };
+        let out = run(&per_pixel(vectors), &warp, &zero_prior(&warp), 1);
+        let fill = fill_of(&warp);
+        let o = |u, v| warp.image.get(u, v);
+        assert_eq!((out.image.get(20, 2), out.vectors.get(20, 2)), (o(111, 2), [91.0, 0.0]));
+        assert_eq!((out.image.get(50, 2), out.vectors.get(50, 2)), (o(111, 2), [61.0, 0.0]));
+        assert_eq!(out.image.get(3, 2), fill.get(3, 2));
+        assert_eq!((out.image.get(2, 2), out.vectors.get(2, 2)), (o(0, 2), [-2.0, 0.0]));
+        assert_eq!((out.image.get(1, 2), out.vectors.get(1, 2)), (o(0, 2), [-0.75, 0.0]));
+        assert_eq!((out.image.get(60, 2), out.vectors.get(60, 2)), (o(60, 1), [0.0, -1.0]));
+        // Walked: 20, 50, 2, 60 and every zero vector falls back.
+        assert_eq!(out.walked, 4);
+        assert_eq!(out.fell_back, 110 - 5);
+
+        // A diagonal walk lands between pixels: block of holes at columns 2..=6, rows 2..=4.
+        let (w, h) = (9, 7);
+        let known: Vec<bool> =
+            (0..w * h).map(|i| !((2..=6).contains(&(i % w)) && (2..=4).contains(&(i / w)))).collect();
+        let warp = warp_of(labelled, |_, _| 2.0, &known, w, h);
+        // From (4, 3) along (0.6, 0.8): the target (4.3, 3.4) and magnitude 1 (4.6, 3.8) have only
+        // hole corners; magnitude 2 (5.2, 4.6) has the known corners (5, 5) and (6, 5).
+        let out = run(
+            &per_pixel(|u, v| if (u, v) == (4, 3) { [0.3, 0.4] } else { [0.0, 0.0] }),
+            &warp,
+            &zero_prior(&warp),
+            1,
+        );
+        let [a, b] = out.vectors.get(4, 3);
+        assert!((a - 1.2).abs() < 1e-6 && (b - 1.6).abs() < 1e-6, "{a}, {b}");
+        let want = sample_known_bilinear(&warp.image, &known, 4.0 + a, 3.0 + b).unwrap();
+        assert_eq!(out.image.get(4, 3), want);
+        let mix = |c: usize| (0.8 * labelled(5, 5)[c] + 0.2 * labelled(6, 5)[c]) / 1.0;
+        assert!((0..3).all(|c| (want[c] - mix(c)).abs() < 1e-6), "{want:?}");
+        assert_eq!(out.walked, 1);
+    }
+
+    /// 8x5, row 2 is a hole from column 2 to 5; uniform depth (every threshold equals it).
+    fn row_scene() -> Warp {
+        let (w, h) = (8, 5);
+        let known: Vec<bool> = (0..w * h).map(|i| !(i / w == 2 && (2..=5).contains(&(i % w)))).collect();
+        warp_of(labelled, |_, _| 4.0, &known, w, h)
+    }
+
+    #[test]
+    fn vectors_compose_across_iterations() {
+        let warp = row_scene();
+        let right = labelled(6, 2);
+        // Every hole reads one pixel to the right: one pixel is filled per iteration, from the
+        // right, each reading the one filled before it.
+        let out = run(&constant([1.0, 0.0]), &warp, &zero_prior(&warp), 3);
+        assert_eq!(out.filled_per_iteration, [1, 1, 2]);
+        // (3, 2) reads (4, 2) filled in iteration 2; (2, 2) reads the hole (3, 2): walks to (4, 2).
+        assert_eq!((out.walked, out.fell_back), (1, 0));
+        for u in 2..=5 {
+            assert_eq!(out.image.get(u, 2), right, "column {u}");
+            assert_eq!(out.composed_vectors.get(u, 2), [6.0 - u as f32, 0.0], "column {u}");
+            assert_eq!(out.vectors.get(u, 2), [if u == 2 { 2.0 } else { 1.0 }, 0.0], "column {u}");
+        }
+        let out = run(&constant([1.0, 0.0]), &warp, &zero_prior(&warp), 2);
+        assert_eq!(out.filled_per_iteration, [1, 3]);
+        assert!((2..=5).all(|u| out.image.get(u, 2) == right));
+        // P = 1: all walk over the holes to column 6, except (5, 2) which reads it directly.
+        let out = run(&constant([1.0, 0.0]), &warp, &zero_prior(&warp), 1);
+        assert_eq!((out.filled_per_iteration.as_slice(), out.walked), (&[4][..], 3));
+        for u in 2..=5 {
+            assert_eq!(out.image.get(u, 2), right, "column {u}");
+            assert_eq!(out.vectors.get(u, 2), [6.0 - u as f32, 0.0], "column {u}");
+        }
+    }
+
+    #[test]
+    fn the_next_prediction_sees_the_kept_vectors_and_depths() {
+        let warp = row_scene();
+        let w = warp.image.width();
+        let mut prior = zero_prior(&warp);
+        prior.set(1, 1, [0.25, -0.5]);
+        prior.set(6, 3, [-1.0, 0.0]);
+        let predictor = Recording::new(constant([1.0, 0.0]));
+        run(&predictor, &warp, &prior, 3);
+        let calls = predictor.calls();
+        assert_eq!(calls.len(), 3);
+        assert_eq!(calls[0].prior, prior);
+        assert_eq!(calls[0].depth, warp.depth);
+        assert_eq!(calls[0].holes, warp.holes.disocclusions());
+        // Iteration 1 kept (5, 2): its vector joins the prior, its depth the depth map.
+        let mut want_prior = prior.clone();
+        want_prior.set(5, 2, [1.0, 0.0]);
+        let mut want_depth = warp.depth.clone();
+        want_depth.set(5, 2, [4.0]);
+        let mut want_holes = warp.holes.disocclusions();
+        want_holes[2 * w + 5] = false;
+        assert_eq!((&calls[1].prior, &calls[1].depth, &calls[1].holes), (&want_prior, &want_depth, &want_holes));
+        // Iteration 2 kept (4, 2).
+        want_prior.set(4, 2, [1.0, 0.0]);
+        want_depth.set(4, 2, [4.0]);
+        want_holes[2 * w + 4] = false;
+        assert_eq!((&calls[2].prior, &calls[2].depth, &calls[2].holes), (&want_prior, &want_depth, &want_holes));
+    }
+
+    #[test]
+    fn a_frame_without_disocclusions_never_calls_the_predictor() {
+        let (w, h) = (7, 5);
+        let never = FnPredictor(|_: &VectorField, _: &DepthMap, _: &[bool]| -> VectorField {
+            panic!("predict called without holes")
+        });
+        // No hole at all: the warp itself.
+        let full = warp_of(labelled, |_, _| 2.0, &vec![true; w * h], w, h);
+        let out = run(&never, &full, &zero_prior(&full), 3);
+        assert_eq!(out.image, full.image);
+        assert_eq!((out.filled_per_iteration.as_slice(), out.predictions), (&[0, 0, 0][..], 0));
+        // New regions only (the last column): the warp with the common new-region rule.
+        let known: Vec<bool> = (0..w * h).map(|i| i % w != w - 1).collect();
+        let border = warp_of(labelled, |_, _| 2.0, &known, w, h);
+        assert_eq!(border.holes.count(PixelClass::NewRegion), h);
+        let out = run(&never, &border, &zero_prior(&border), 3);
+        let mut want = border.image.clone();
+        fill_new_regions(&mut want, &border.holes);
+        assert_eq!(out.image, want);
+        assert!((0..h).all(|v| out.image.get(w - 1, v) == labelled(w - 2, v)));
+        assert_eq!(out.vectors, zero_prior(&border));
+    }
+
+    #[test]
+    fn all_hole_frames_give_finite_images() {
+        let (w, h) = (7, 5);
+        // As the warper classifies it: all new region, nothing to predict, nothing to copy.
+        let empty = warp_of(labelled, |_, _| 2.0, &vec![false; w * h], w, h);
+        let never = FnPredictor(|_: &VectorField, _: &DepthMap, _: &[bool]| -> VectorField { panic!("called") });
+        let out = run(&never, &empty, &zero_prior(&empty), 3);
+        assert_eq!(out.image, empty.image);
+        // Declared all disocclusion: predicted, but nothing is ever readable; stays as warped.
+        let holes = HoleMask::uniform(w, h, PixelClass::Disocclusion);
+        let all = Warp { holes, ..empty };
+        for vector in [[1.0, 0.0], [0.0, 0.0], [f32::NAN, 2.0], [1e6, -1e6]] {
+            for iterations in [1, 3] {
+                let predictor = Recording::new(constant(vector));
+                let out = run(&predictor, &all, &zero_prior(&all), iterations);
+                assert_all_finite(&out.image);
+                assert_eq!(out.image, all.image);
+                assert_eq!(out.fell_back, w * h);
+                assert_eq!(predictor.calls().len(), iterations);
+            }
+        }
+    }
+
+    #[test]
+    fn odd_sizes_random_vectors_are_deterministic_and_finite() {
+        let (w, h) = (13, 7);
+        let is_hole = |u: usize, v: usize| ((3..=8).contains(&u) && (2..=4).contains(&v)) || (u, v) == (10, 5);
+        let known: Vec<bool> = (0..w * h).map(|i| !is_hole(i % w, i / w)).collect();
+        let depth = |u: usize, v: usize| if u < 6 { 1.0 + v as f32 * 0.1 } else { 6.0 + u as f32 * 0.3 };
+        let warp = warp_of(labelled, depth, &known, w, h);
+        let count = warp.holes.count(PixelClass::Disocclusion);
+        assert_eq!(count, 19);
+        // Pseudo-random vectors in +-8 px that change with the iteration (through the depth seen).
+        let predictor = FnPredictor(|_: &VectorField, depth: &DepthMap, holes: &[bool]| {
+            let salt = depth.pixels().iter().filter(|&&[z]| z > 0.0).count();
+            on_holes(depth, holes, |u, v| {
+                let hash = ((u * 73 + v * 151 + salt * 29) as u32).wrapping_mul(2_654_435_761);
+                if (u, v) == (5, 3) || hash % 17 == 3 {
+                    return [f32::NAN, 1.0];
+                }
+                [((hash >> 8) % 1601) as f32 / 100.0 - 8.0, ((hash >> 20) % 1601) as f32 / 100.0 - 8.0]
+            })
+        });
+        for iterations in [1, 2, 3] {
+            let on = |threads| {
+                let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+                pool.install(|| run(&predictor, &warp, &zero_prior(&warp), iterations))
+            };
+            let (one, three) = (on(1), on(3));
+            assert_eq!(one.image, three.image);
+            assert_eq!(one.vectors, three.vectors);
+            assert_eq!(one.filled_per_iteration, three.filled_per_iteration);
+            assert_all_finite(&one.image);
+            assert_eq!(one.filled_per_iteration.iter().sum::<usize>(), count);
+            assert!(one.fell_back >= 1, "the NaN vectors fall back");
+            for v in 0..h {
+                for u in 0..w {
+                    if known[v * w + u] {
+                        assert_eq!(one.image.get(u, v), warp.image.get(u, v));
+                    } else {
+                        // Every read mixes known colours: blue channel 0.5 throughout.
+                        assert!((one.image.get(u, v)[2] - 0.5).abs() < 1e-6, "({u}, {v})");
+                    }
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn infiller_reports_three_stages_and_uses_the_temporal_prior() {
+        let scene = BoxScene::new();
+        let warp = &scene.warped;
+        let method =
+            IterativeInfiller::new("ivp", Recording::new(to_nearest_known(Direction::Right)), DEFAULT_ITERATIONS);
+        assert_eq!((method.name(), method.iterations(), method.uses_ground_truth()), ("ivp", 3, false));
+        // Without frame n-2: zero prior.
+        let out = method.infill(&scene.context(false)).unwrap();
+        let names: Vec<&str> = out.stages.iter().map(|(name, _)| *name).collect();
+        assert_eq!(names, ["prior", "network", "infill"]);
+        assert_eq!(out.image, fill_of(warp));
+        assert_eq!(method.predictor().calls()[0].prior, zero_prior(warp));
+        // With it: the prior of `prior_for_context`, non-zero around the disocclusion.
+        let ctx = scene.context(true);
+        let out = method.infill(&ctx).unwrap();
+        assert_eq!(out.image, fill_of(warp));
+        let prior = prior_for_context(&ctx).unwrap();
+        assert!(prior.as_flat().iter().any(|&x| x != 0.0));
+        assert_eq!(method.predictor().calls()[1].prior, prior);
+        // As a trait object, behind a box.
+        let boxed: Box<dyn Infiller> = Box::new(IterativeInfiller::new(
+            "ivp-box",
+            Box::new(to_nearest_known(Direction::Right)) as Box<dyn VectorPredictor>,
+            2,
+        ));
+        assert_eq!(boxed.infill(&ctx).unwrap().image, fill_of(warp));
+    }
+
+    #[test]
+    fn bad_inputs_are_errors() {
+        let warp = row_scene();
+        let prior = zero_prior(&warp);
+        let ok = constant([1.0, 0.0]);
+        let err = |result: Result<IterativeInfill, InfillError>| matches!(result, Err(InfillError::Other(_)));
+        assert!(err(infill_iteratively(&ok, &warp.image, &warp.depth, &warp.holes, &prior, 0)));
+        assert!(err(infill_iteratively(&ok, &warp.image, &warp.depth, &warp.holes, &VectorField::zeros(3, 3), 3)));
+        assert!(err(infill_iteratively(&ok, &warp.image, &DepthMap::zeros(8, 4), &warp.holes, &prior, 3)));
+        let wrong_size = FnPredictor(|_: &VectorField, _: &DepthMap, _: &[bool]| VectorField::zeros(2, 2));
+        assert!(err(infill_iteratively(&wrong_size, &warp.image, &warp.depth, &warp.holes, &prior, 3)));
+        struct Failing;
+        impl VectorPredictor for Failing {
+            fn predict(&self, _: &VectorField, _: &DepthMap, _: &[bool]) -> Result<VectorField, InfillError> {
+                Err(InfillError::Other("no model".into()))
+            }
+        }
+        let result = infill_iteratively(&Failing, &warp.image, &warp.depth, &warp.holes, &prior, 3);
+        assert!(matches!(result, Err(InfillError::Other(message)) if message == "no model"));
+    }
+}

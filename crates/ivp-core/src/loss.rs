@@ -1,0 +1,493 @@
+//! The training losses of SPEC §6.4, on candle tensors and differentiable through candle's autograd:
+//! `L = 1 L_mse + 1 L_ssim + 0.001 L_smooth`, each a mean over the disocclusion pixels.
+//!
+//! The formulas are those of the PyTorch reference (`/work/shared/bench/torch_reference.py`:
+//! `masked_ssim_loss`, `smoothness` and the MSE of `step()`), value for value, with one deliberate
+//! difference: the SSIM term of a batch without a single disocclusion pixel is 0 (the reference
+//! gives 1 there, `1 - 0 / 1`). Every term is written as `sum(term * mask) / max(count, 1)`, so an
+//! empty mask gives exactly 0 and zero (finite) gradients, never NaN; with a non-empty mask it is
+//! the reference's value.
+//!
+//! Gradients follow PyTorch's conventions at the kinks, so that the two frameworks train alike:
+//! - the variance clamp `clamp_min(0)` is candle's `relu`, whose gradient is 1 at 0 as PyTorch's
+//!   `clamp_min` (candle's `maximum` would give 1/2 at a tie, and `clamp` is `maximum`);
+//! - `|x|` is `x * sign(x)` with the sign detached: gradient sign(x), 0 at 0 as in PyTorch (candle's
+//!   `abs` backward gives +1 at 0, and costs five tensor ops instead of one);
+//! - `sqrt(va vb + 1e-12)`: the 1e-12 keeps candle's `sqrt` backward (`grad / (2 sqrt)`) finite where
+//!   both variances are 0.
+//!
+//! Reductions are candle's f32 sums; the normalising counts are exact (summed in f64 on the host,
+//! the mask is data, not a parameter).
+
+use crate::ops::gaussian_blur;
+use candle_core::{bail, DType, Result, Tensor};
+
+/// SSIM's luminance constant C1 = (0.01 L)^2 for images in [0, 1].
+pub const SSIM_C1: f64 = 0.01 * 0.01;
+/// SSIM's contrast constant C2 = (0.03 L)^2.
+pub const SSIM_C2: f64 = 0.03 * 0.03;
+/// Added under the square root of `va vb`, as in the reference; keeps the gradient finite at 0.
+const SQRT_EPS: f64 = 1e-12;
+/// Sharpness of the edge-aware weights `exp(-10 mean_c |grad f|)` of the smoothness term.
+const EDGE_SHARPNESS: f64 = 10.0;
+
+/// Weights of the three terms; SPEC §6.4: 1, 1, 0.001.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct LossWeights {
+    pub mse: f64,
+    pub ssim: f64,
+    pub smooth: f64,
+}
+
+impl Default for LossWeights {
+    fn default() -> Self {
+        Self { mse: 1.0, ssim: 1.0, smooth: 0.001 }
+    }
+}
+
+/// The terms of one loss evaluation, each a scalar (0-dimensional) f32 tensor; `total` is their
+/// weighted sum, the one to call `backward` on.
+#[derive(Clone, Debug)]
+pub struct LossTerms {
+    pub mse: Tensor,
+    pub ssim: Tensor,
+    pub smooth: Tensor,
+    pub total: Tensor,
+}
+
+/// The loss of SPEC §6.4 on `prediction` and `truth` (B, 3, H, W) in [0, 1], `mask` (B, 1, H, W) of
+/// 0/1 (1 on disocclusions) and the predicted `vectors` (B, 2, H, W) in pixels. Without vectors (the
+/// variant that predicts intensities directly) the smoothness term is 0.
+pub fn ivp_loss(
+    prediction: &Tensor,
+    truth: &Tensor,
+    mask: &Tensor,
+    vectors: Option<&Tensor>,
+    weights: &LossWeights,
+) -> Result<LossTerms> {
+    let mse = masked_mse_loss(prediction, truth, mask)?;
+    let ssim = masked_ssim_loss(prediction, truth, mask)?;
+    let smooth = match vectors {
+        Some(v) => smoothness_loss(v, truth, mask)?,
+        None => Tensor::zeros((), DType::F32, prediction.device())?,
+    };
+    let total =
+        ((mse.affine(weights.mse, 0.0)? + ssim.affine(weights.ssim, 0.0)?)? + smooth.affine(weights.smooth, 0.0)?)?;
+    Ok(LossTerms { mse, ssim, smooth, total })
+}
+
+/// Mean of `(prediction - truth)^2` over the mask's pixels and the channels:
+/// `sum((p - t)^2 m) / max(sum(m) C, 1)`; 0 for an empty mask.
+pub fn masked_mse_loss(prediction: &Tensor, truth: &Tensor, mask: &Tensor) -> Result<Tensor> {
+    check_images("masked_mse_loss", prediction, truth, mask)?;
+    masked_mean(&(prediction - truth)?.sqr()?, mask)
+}
+
+/// `1 - SSIM` averaged over the mask's pixels and the channels, with the SSIM map of luminance and
+/// contrast only (no structure term), as in the reference:
+/// `s = (2 mu_a mu_b + C1)(2 sqrt(va vb + 1e-12) + C2) / ((mu_a^2 + mu_b^2 + C1)(va + vb + C2))`,
+/// means and variances over the 11 x 11 Gaussian window (sigma 1.5, zero padding), variances
+/// clamped at 0. Computed as `sum((1 - s) m) / max(sum(m) C, 1)`: 0 for an empty mask, the
+/// reference's `1 - sum(s m) / max(sum(m) C, 1)` otherwise.
+///
+/// Note that the 1e-12 makes s slightly above 1 in flat regions (2e-6 / C2 ~ 0.0022 for two equal
+/// constant images), so this term can be slightly negative; the reference behaves the same.
+pub fn masked_ssim_loss(prediction: &Tensor, truth: &Tensor, mask: &Tensor) -> Result<Tensor> {
+    check_images("masked_ssim_loss", prediction, truth, mask)?;
+    let (a, b) = (prediction, truth);
+    let (mu_a, mu_b) = (gaussian_blur(a)?, gaussian_blur(b)?);
+    let (mu_a2, mu_b2) = (mu_a.sqr()?, mu_b.sqr()?);
+    let va = (gaussian_blur(&a.sqr()?)? - &mu_a2)?.relu()?;
+    let vb = (gaussian_blur(&b.sqr()?)? - &mu_b2)?.relu()?;
+    let luminance = (&mu_a * &mu_b)?.affine(2.0, SSIM_C1)?;
+    let contrast = ((&va * &vb)? + SQRT_EPS)?.sqrt()?.affine(2.0, SSIM_C2)?;
+    let denominator = (((mu_a2 + mu_b2)? + SSIM_C1)? * ((va + vb)? + SSIM_C2)?)?;
+    let s = ((luminance * contrast)? / denominator)?;
+    masked_mean(&s.affine(-1.0, 1.0)?, mask)
+}
+
+/// Edge-aware smoothness of `vectors` (B, 2, H, W) between neighbouring disocclusion pixels, as the
+/// reference's `smoothness`: for x (and likewise y), with pairs `mx` of horizontally adjacent
+/// pixels both in the mask and `wx = exp(-10 mean_c |dx truth|)`,
+/// `lx = sum(wx |dx vectors| mx) / max(sum(mx), 1)` (summed over both vector components, counted
+/// once per pair); the loss is `lx + ly`. 0 without any such pair.
+pub fn smoothness_loss(vectors: &Tensor, truth: &Tensor, mask: &Tensor) -> Result<Tensor> {
+    let (b, _, h, w) = truth.dims4()?;
+    if vectors.dims() != [b, 2, h, w] || mask.dims() != [b, 1, h, w] {
+        bail!("smoothness_loss: vectors {:?}, truth {:?}, mask {:?}", vectors.dims(), truth.dims(), mask.dims());
+    }
+    smoothness_along(vectors, truth, mask, 3)? + smoothness_along(vectors, truth, mask, 2)?
+}
+
+/// One axis (`dim` 3: x, 2: y) of [`smoothness_loss`].
+fn smoothness_along(vectors: &Tensor, truth: &Tensor, mask: &Tensor, dim: usize) -> Result<Tensor> {
+    let n = vectors.dim(dim)?;
+    if n < 2 {
+        return Tensor::zeros((), DType::F32, vectors.device());
+    }
+    let diff = |t: &Tensor| t.narrow(dim, 1, n - 1)? - t.narrow(dim, 0, n - 1)?;
+    let pairs = (mask.narrow(dim, 1, n - 1)? * mask.narrow(dim, 0, n - 1)?)?;
+    let edge = (abs(&diff(truth)?)?.mean_keepdim(1)? * -EDGE_SHARPNESS)?.exp()?;
+    let weighted = abs(&diff(vectors)?)?.broadcast_mul(&(edge * &pairs)?)?;
+    normalise(&weighted.sum_all()?, count(&pairs)?)
+}
+
+/// `|x|` whose gradient is sign(x), 0 at 0 (PyTorch's), rather than candle's +1 at 0.
+fn abs(x: &Tensor) -> Result<Tensor> {
+    x * x.sign()?.detach()
+}
+
+/// `sum(x m) / max(sum(m) C, 1)` for x (B, C, H, W) and m (B, 1, H, W).
+fn masked_mean(x: &Tensor, mask: &Tensor) -> Result<Tensor> {
+    let c = x.dim(1)?;
+    normalise(&x.broadcast_mul(mask)?.sum_all()?, count(mask)? * c as f64)
+}
+
+/// The number of mask pixels (the sum of the mask), exact: summed in f64.
+fn count(mask: &Tensor) -> Result<f64> {
+    mask.to_dtype(DType::F64)?.sum_all()?.to_scalar::<f64>()
+}
+
+/// `sum / max(n, 1)` as one f32 division, like the reference's.
+fn normalise(sum: &Tensor, n: f64) -> Result<Tensor> {
+    sum.broadcast_div(&Tensor::new(n.max(1.0) as f32, sum.device())?)
+}
+
+fn check_images(name: &str, prediction: &Tensor, truth: &Tensor, mask: &Tensor) -> Result<()> {
+    let (b, _, h, w) = prediction.dims4()?;
+    if truth.dims() != prediction.dims() || mask.dims() != [b, 1, h, w] {
+        bail!("{name}: prediction {:?}, truth {:?}, mask {:?}", prediction.dims(), truth.dims(), mask.dims());
+    }
+    if prediction.dtype() != DType::F32 || truth.dtype() != DType::F32 || mask.dtype() != DType::F32 {
+        bail!("{name}: f32 tensors expected");
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::ops::test_util::{flat, random};
+    use candle_core::{Device, Var};
+
+    /// Deterministic values in [0, 1).
+    fn uniform(shape: &[usize], seed: u64) -> Tensor {
+        ((random(shape, seed) + 1.0).unwrap() * 0.5).unwrap()
+    }
+
+    /// A deterministic 0/1 mask (B, 1, H, W), 1 with probability about `p`.
+    fn holes(b: usize, h: usize, w: usize, p: f64, seed: u64) -> Tensor {
+        uniform(&[b, 1, h, w], seed).lt(p).unwrap().to_dtype(DType::F32).unwrap()
+    }
+
+    fn tensor(v: Vec<f32>, shape: &[usize]) -> Tensor {
+        Tensor::from_vec(v, shape, &Device::Cpu).unwrap()
+    }
+
+    fn scalar(t: &Tensor) -> f32 {
+        assert_eq!(t.rank(), 0, "{:?}", t.dims());
+        t.to_scalar::<f32>().unwrap()
+    }
+
+    fn all_finite(t: &Tensor) -> bool {
+        flat(t).iter().all(|v| v.is_finite())
+    }
+
+    /// The terms and the gradients of the total with respect to the prediction and the vectors.
+    fn evaluate(p: &Tensor, t: &Tensor, m: &Tensor, v: &Tensor, weights: &LossWeights) -> (LossTerms, Tensor, Tensor) {
+        let (p, v) = (Var::from_tensor(p).unwrap(), Var::from_tensor(v).unwrap());
+        let terms = ivp_loss(&p, t, m, Some(&v), weights).unwrap();
+        let grads = terms.total.backward().unwrap();
+        // No gradient entry at all for an input the total does not depend on (vectors of a 1x1 image).
+        let grad = |x: &Var| grads.get(x).cloned().unwrap_or_else(|| x.zeros_like().unwrap());
+        let (gp, gv) = (grad(&p), grad(&v));
+        (terms, gp, gv)
+    }
+
+    const SHAPE: [usize; 4] = [2, 3, 19, 23];
+
+    #[test]
+    fn default_weights() {
+        assert_eq!(LossWeights::default(), LossWeights { mse: 1.0, ssim: 1.0, smooth: 0.001 });
+    }
+
+    #[test]
+    fn empty_mask_gives_zero_terms_and_finite_gradients() {
+        let [b, c, h, w] = SHAPE;
+        let (p, t) = (uniform(&SHAPE, 1), uniform(&SHAPE, 2));
+        let v = (random(&[b, 2, h, w], 3) * 5.0).unwrap();
+        let m = Tensor::zeros((b, 1, h, w), DType::F32, &Device::Cpu).unwrap();
+        let (terms, gp, gv) = evaluate(&p, &t, &m, &v, &LossWeights::default());
+        for (name, term) in
+            [("mse", &terms.mse), ("ssim", &terms.ssim), ("smooth", &terms.smooth), ("total", &terms.total)]
+        {
+            assert_eq!(scalar(term), 0.0, "{name}");
+        }
+        assert_eq!(gp.dims(), [b, c, h, w]);
+        assert!(flat(&gp).iter().chain(&flat(&gv)).all(|g| *g == 0.0));
+    }
+
+    #[test]
+    fn an_image_without_holes_contributes_nothing() {
+        // Image 0 of the batch has no hole: the batch's terms are those of image 1 alone.
+        let [_, _, h, w] = SHAPE;
+        let (p, t) = (uniform(&SHAPE, 4), uniform(&SHAPE, 5));
+        let v = (random(&[2, 2, h, w], 6) * 3.0).unwrap();
+        let m1 = holes(1, h, w, 0.3, 7);
+        let m = Tensor::cat(&[&m1.zeros_like().unwrap(), &m1], 0).unwrap();
+        let one = |x: &Tensor| x.narrow(0, 1, 1).unwrap();
+        let weights = LossWeights::default();
+        let both = ivp_loss(&p, &t, &m, Some(&v), &weights).unwrap();
+        let alone = ivp_loss(&one(&p), &one(&t), &m1, Some(&one(&v)), &weights).unwrap();
+        for (a, b) in [(&both.mse, &alone.mse), (&both.ssim, &alone.ssim), (&both.smooth, &alone.smooth)] {
+            assert!((scalar(a) - scalar(b)).abs() <= 1e-6 * scalar(b).abs(), "{a} vs {b}");
+            assert!(scalar(b) > 0.0);
+        }
+    }
+
+    #[test]
+    fn all_hole_mask_is_the_plain_mean() {
+        let [b, _, h, w] = SHAPE;
+        let (p, t) = (uniform(&SHAPE, 8), uniform(&SHAPE, 9));
+        let v = random(&[b, 2, h, w], 10);
+        let m = Tensor::ones((b, 1, h, w), DType::F32, &Device::Cpu).unwrap();
+        let (terms, gp, gv) = evaluate(&p, &t, &m, &v, &LossWeights::default());
+        let plain_mse = scalar(&(&p - &t).unwrap().sqr().unwrap().mean_all().unwrap());
+        assert!((scalar(&terms.mse) - plain_mse).abs() < 1e-6 * plain_mse);
+        // Two independent uniform images. Without the structure term, SSIM compares only local means
+        // and spreads, which match: the loss is small (about 0.02), though not 0.
+        let ssim = scalar(&terms.ssim);
+        assert!(ssim > 0.01 && ssim < 0.05, "{ssim}");
+        // A flattened prediction (a quarter of the spread) loses on contrast.
+        let flatter = (&t * 0.25).unwrap().affine(1.0, 0.375).unwrap();
+        let low = scalar(&masked_ssim_loss(&flatter, &t, &m).unwrap());
+        assert!(low > 0.2, "{low}");
+        assert!(scalar(&terms.smooth) > 0.0);
+        assert!(all_finite(&gp) && all_finite(&gv));
+    }
+
+    #[test]
+    fn equal_constant_images() {
+        let [b, _, h, w] = SHAPE;
+        let p = (Tensor::ones(&SHAPE[..], DType::F32, &Device::Cpu).unwrap() * 0.5).unwrap();
+        let v = Tensor::zeros((b, 2, h, w), DType::F32, &Device::Cpu).unwrap();
+        let m = holes(b, h, w, 0.5, 11);
+        let (terms, gp, gv) = evaluate(&p, &p, &m, &v, &LossWeights::default());
+        assert_eq!(scalar(&terms.mse), 0.0);
+        assert_eq!(scalar(&terms.smooth), 0.0);
+        // s is 1 up to the reference's 1e-12 under the root: 2e-6 / C2 ~ 0.0022 above 1 at most.
+        let ssim = scalar(&terms.ssim);
+        assert!((-2.3e-3..=0.0).contains(&ssim), "{ssim}");
+        assert!(all_finite(&gp) && all_finite(&gv));
+        // Equal (non-constant) images: likewise.
+        let q = uniform(&SHAPE, 12);
+        let ssim = scalar(&masked_ssim_loss(&q, &q, &m).unwrap());
+        assert!((-2.3e-3..=0.0).contains(&ssim), "{ssim}");
+    }
+
+    #[test]
+    fn huge_vectors_stay_finite() {
+        let [b, _, h, w] = SHAPE;
+        let (p, t) = (uniform(&SHAPE, 13), uniform(&SHAPE, 14));
+        let v = (random(&[b, 2, h, w], 15) * 1e6).unwrap();
+        let m = holes(b, h, w, 0.6, 16);
+        let (terms, gp, gv) = evaluate(&p, &t, &m, &v, &LossWeights::default());
+        let smooth = scalar(&terms.smooth);
+        assert!(smooth.is_finite() && smooth > 1e4, "{smooth}");
+        assert!(scalar(&terms.total).is_finite());
+        assert!(all_finite(&gp) && all_finite(&gv));
+        assert!(flat(&gv).iter().any(|g| *g != 0.0));
+    }
+
+    #[test]
+    fn one_pixel_by_hand() {
+        // One hole pixel at (image 1, y 4, x 5): MSE is the mean of its three squared errors, its
+        // gradient 2 (p - t) / 3 there and 0 elsewhere; no pair of hole pixels, no smoothness.
+        let [b, c, h, w] = SHAPE;
+        let (p, t) = (uniform(&SHAPE, 17), uniform(&SHAPE, 18));
+        let mut mv = vec![0f32; b * h * w];
+        mv[(h + 4) * w + 5] = 1.0;
+        let m = tensor(mv, &[b, 1, h, w]);
+        let v = random(&[b, 2, h, w], 19);
+        let (pv, tv) = (flat(&p), flat(&t));
+        let at = |ch: usize| ((c + ch) * h + 4) * w + 5;
+        let want: f64 = (0..c).map(|ch| (pv[at(ch)] as f64 - tv[at(ch)] as f64).powi(2)).sum::<f64>() / 3.0;
+        let weights = LossWeights { mse: 1.0, ssim: 0.0, smooth: 1.0 };
+        let (terms, gp, _) = evaluate(&p, &t, &m, &v, &weights);
+        assert!((scalar(&terms.mse) as f64 - want).abs() < 1e-7, "{} vs {want}", scalar(&terms.mse));
+        assert_eq!(scalar(&terms.smooth), 0.0);
+        let gp = flat(&gp);
+        for (i, g) in gp.iter().enumerate() {
+            let want = match (0..c).find(|&ch| at(ch) == i) {
+                Some(_) => 2.0 * (pv[i] - tv[i]) / 3.0,
+                None => 0.0,
+            };
+            assert!((g - want).abs() < 1e-6, "[{i}]: {g} vs {want}");
+        }
+    }
+
+    #[test]
+    fn smoothness_of_one_pair_by_hand() {
+        // Hole pixels (y 2, x 3) and (y 2, x 4) of a 1x3x5x6 image: one horizontal pair, no
+        // vertical one. lx = exp(-10 mean_c |t(4) - t(3)|) (|dv_x| + |dv_y|) / 1.
+        let (h, w) = (5, 6);
+        let t = uniform(&[1, 3, h, w], 20);
+        let v = (random(&[1, 2, h, w], 21) * 4.0).unwrap();
+        let mut mv = vec![0f32; h * w];
+        mv[2 * w + 3] = 1.0;
+        mv[2 * w + 4] = 1.0;
+        let m = tensor(mv, &[1, 1, h, w]);
+        let (tv, vv) = (flat(&t), flat(&v));
+        let px = |plane: usize, x: usize| (plane * h + 2) * w + x;
+        let mean_dt = (0..3).map(|c| (tv[px(c, 4)] - tv[px(c, 3)]).abs() as f64).sum::<f64>() / 3.0;
+        let dv = (0..2).map(|c| (vv[px(c, 4)] - vv[px(c, 3)]).abs() as f64).sum::<f64>();
+        let want = (-10.0 * mean_dt).exp() * dv;
+        let got = scalar(&smoothness_loss(&v, &t, &m).unwrap()) as f64;
+        assert!((got - want).abs() < 1e-6 * want, "{got} vs {want}");
+    }
+
+    #[test]
+    fn without_vectors_the_smoothness_term_is_zero() {
+        let [b, _, h, w] = SHAPE;
+        let (p, t, m) = (uniform(&SHAPE, 22), uniform(&SHAPE, 23), holes(b, h, w, 0.2, 24));
+        let terms = ivp_loss(&p, &t, &m, None, &LossWeights::default()).unwrap();
+        assert_eq!(scalar(&terms.smooth), 0.0);
+        assert_eq!(scalar(&terms.total), scalar(&(&terms.mse + &terms.ssim).unwrap()));
+    }
+
+    #[test]
+    fn tiny_and_odd_sizes() {
+        for (h, w) in [(1, 1), (1, 4), (3, 1), (2, 2)] {
+            let shape = [1, 3, h, w];
+            let m = Tensor::ones((1, 1, h, w), DType::F32, &Device::Cpu).unwrap();
+            let v = random(&[1, 2, h, w], 25);
+            let (terms, gp, gv) = evaluate(&uniform(&shape, 26), &uniform(&shape, 27), &m, &v, &LossWeights::default());
+            assert!(scalar(&terms.total).is_finite(), "{h}x{w}");
+            assert!(all_finite(&gp) && all_finite(&gv), "{h}x{w}");
+        }
+    }
+
+    #[test]
+    fn rejects_mismatched_shapes() {
+        let [b, _, h, w] = SHAPE;
+        let (p, t) = (uniform(&SHAPE, 1), uniform(&SHAPE, 2));
+        let m = holes(b, h, w, 0.5, 3);
+        assert!(ivp_loss(&p, &t.narrow(3, 0, w - 1).unwrap(), &m, None, &LossWeights::default()).is_err());
+        assert!(ivp_loss(&p, &t, &m.narrow(2, 0, h - 1).unwrap(), None, &LossWeights::default()).is_err());
+        let v = random(&[b, 3, h, w], 4);
+        assert!(ivp_loss(&p, &t, &m, Some(&v), &LossWeights::default()).is_err());
+    }
+
+    /// Central differences of the total (an f32 computation) with step 1e-2, against the analytic
+    /// gradient: `|fd - analytic| <= 1e-2 |analytic|` over each input's whole gradient. All weights
+    /// 1, so that the vectors' gradient is not lost in the rounding of the other terms.
+    #[test]
+    fn gradient_matches_finite_differences() {
+        let (b, c, h, w) = (2, 3, 6, 7);
+        let (p, t) = (uniform(&[b, c, h, w], 30), uniform(&[b, c, h, w], 31));
+        let v = (random(&[b, 2, h, w], 32) * 2.0).unwrap();
+        let m = holes(b, h, w, 0.5, 33);
+        let weights = LossWeights { mse: 1.0, ssim: 1.0, smooth: 1.0 };
+        let (_, gp, gv) = evaluate(&p, &t, &m, &v, &weights);
+        let total =
+            |p: &Tensor, v: &Tensor| -> f64 { scalar(&ivp_loss(p, &t, &m, Some(v), &weights).unwrap().total) as f64 };
+        let eps = 1e-2f32;
+        let check = |x: &Tensor, analytic: &Tensor, loss: &dyn Fn(&Tensor) -> f64, name: &str| {
+            let (base, analytic) = (flat(x), flat(analytic));
+            let (mut err, mut norm) = (0f64, 0f64);
+            for (i, &a) in analytic.iter().enumerate() {
+                let at = |d: f32| {
+                    let mut v = base.clone();
+                    v[i] += d;
+                    loss(&tensor(v, x.dims()))
+                };
+                let fd = (at(eps) - at(-eps)) / (2.0 * eps as f64);
+                err += (fd - a as f64).powi(2);
+                norm += (a as f64).powi(2);
+            }
+            let (err, norm) = (err.sqrt(), norm.sqrt());
+            println!("{name}: relative error {:.2e} (gradient norm {norm:.3e})", err / norm);
+            assert!(norm > 1e-3, "{name}: gradient norm {norm}");
+            assert!(err <= 1e-2 * norm, "{name}: error {err} for a gradient of norm {norm}");
+        };
+        check(&p, &gp, &|p| total(p, &v), "prediction");
+        check(&v, &gv, &|v| total(&p, v), "vectors");
+    }
+
+    /// The reference's formulas, run by PyTorch on the same values: each term within 1e-5 and the
+    /// gradients of the total. Skipped without python3 + torch.
+    #[test]
+    fn matches_the_torch_reference() {
+        const BENCH: &str = "/work/shared/bench";
+        let probe = std::process::Command::new("python3")
+            .args(["-c", &format!("import sys; sys.path.insert(0, {BENCH:?}); import torch, torch_reference")])
+            .output();
+        if !matches!(probe, Ok(ref o) if o.status.success()) {
+            println!("skipped: torch not available (python3 with torch and {BENCH}/torch_reference.py)");
+            return;
+        }
+        let (b, c, h, w) = (2, 3, 19, 23);
+        let p = uniform(&[b, c, h, w], 40);
+        // The truth has a flat patch (zero variance: the clamp and the 1e-12 at work) inside holes.
+        let mut tv = flat(&uniform(&[b, c, h, w], 41));
+        let mut mv = flat(&holes(b, h, w, 0.4, 42));
+        for plane in 0..b * c {
+            for y in 3..12 {
+                for x in 4..15 {
+                    tv[(plane * h + y) * w + x] = 0.25 + 0.1 * (plane % c) as f32;
+                    mv[((plane / c) * h + y) * w + x] = 1.0;
+                }
+            }
+        }
+        let (t, m) = (tensor(tv, &[b, c, h, w]), tensor(mv, &[b, 1, h, w]));
+        // Vectors in steps of 0.5: many equal neighbours, where |dv| has its kink.
+        let v = (random(&[b, 2, h, w], 43) * 6.0).unwrap().round().unwrap().affine(0.5, 0.0).unwrap();
+        let (terms, gp, gv) = evaluate(&p, &t, &m, &v, &LossWeights::default());
+
+        let dir = std::env::temp_dir().join(format!("ivp-loss-torch-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        for (name, x) in [("p", &p), ("t", &t), ("m", &m), ("v", &v)] {
+            let bytes: Vec<u8> = flat(x).iter().flat_map(|v| v.to_le_bytes()).collect();
+            std::fs::write(dir.join(format!("{name}.bin")), bytes).unwrap();
+        }
+        let script = format!(
+            r#"
+import sys
+sys.path.insert(0, {BENCH:?})
+import torch
+from torch_reference import gauss_window, masked_ssim_loss, smoothness
+d = sys.argv[1]
+load = lambda n, s: torch.frombuffer(bytearray(open(d + "/" + n + ".bin", "rb").read()), dtype=torch.float32).reshape(s).clone()
+p = load("p", ({b}, {c}, {h}, {w})).requires_grad_()
+t = load("t", ({b}, {c}, {h}, {w}))
+m = load("m", ({b}, 1, {h}, {w}))
+v = load("v", ({b}, 2, {h}, {w})).requires_grad_()
+mse = ((p - t) ** 2 * m).sum() / (m.sum() * 3).clamp_min(1)
+ssim = masked_ssim_loss(p, t, m, gauss_window({c}))
+smooth = smoothness(v, t, m)
+(mse + ssim + 1e-3 * smooth).backward()
+print(repr(mse.item()), repr(ssim.item()), repr(smooth.item()))
+print(" ".join(map(repr, p.grad.flatten().tolist())))
+print(" ".join(map(repr, v.grad.flatten().tolist())))
+"#
+        );
+        let out = std::process::Command::new("python3").args(["-c", &script]).arg(&dir).output().unwrap();
+        std::fs::remove_dir_all(&dir).unwrap();
+        assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+        let text = String::from_utf8(out.stdout).unwrap();
+        let lines: Vec<Vec<f64>> =
+            text.lines().map(|l| l.split_whitespace().map(|v| v.parse().unwrap()).collect()).collect();
+        let ours = [scalar(&terms.mse), scalar(&terms.ssim), scalar(&terms.smooth)];
+        for ((name, a), e) in ["mse", "ssim", "smooth"].iter().zip(ours).zip(&lines[0]) {
+            println!("{name}: ours {a}, torch {e}");
+            assert!((a as f64 - e).abs() < 1e-5, "{name}: {a} vs torch {e}");
+        }
+        for (name, ours, theirs) in [("prediction", flat(&gp), &lines[1]), ("vectors", flat(&gv), &lines[2])] {
+            assert_eq!(ours.len(), theirs.len());
+            let scale = theirs.iter().fold(0f64, |s, g| s.max(g.abs()));
+            let err = ours.iter().zip(theirs).fold(0f64, |s, (a, e)| s.max((*a as f64 - e).abs()));
+            println!("{name} gradient: max |torch| {scale:e}, max difference {err:e}");
+            assert!(err <= 1e-4 * scale, "{name} gradient: max difference {err} for max |g| {scale}");
+        }
+    }
+}

@@ -1,0 +1,233 @@
+//! Model files and training checkpoints, both safetensors.
+//!
+//! - A **model file** holds only the network's parameters, under the `state_dict` names of
+//!   `IvpUNet` in `shared/bench/torch_reference.py`, and the configuration in the safetensors
+//!   metadata (`ivp.format`, `ivp.variant`, `ivp.width_mult`, `ivp.version`). See MODEL.md.
+//! - A **checkpoint** adds Adam's moments (`adam.m.NAME`, `adam.v.NAME`) and, in the metadata, the
+//!   step, Adam's step count and the training configuration as JSON: all a bit-identical resume needs
+//!   (the samples of a step are a function of the seed and the step alone).
+//!
+//! Both are written atomically (temporary file, then rename): a crash never leaves half a file.
+
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+
+use candle_core::{Device, Tensor};
+use candle_nn::{VarBuilder, VarMap};
+use ivp_core::model::{named_parameters, IvpNet, ModelConfig};
+use ivp_core::optim::Adam;
+
+/// Written to `ivp.format`; a file of another format is refused with a clear message.
+pub const MODEL_FORMAT: &str = "ivp-model-1";
+pub const CHECKPOINT_FORMAT: &str = "ivp-checkpoint-1";
+
+#[derive(Debug, thiserror::Error)]
+pub enum CheckpointError {
+    #[error("{}: {problem}", path.display())]
+    Invalid { path: PathBuf, problem: String },
+    #[error(transparent)]
+    Data(#[from] ivp_data::DataError),
+}
+
+fn invalid(path: &Path, problem: impl Into<String>) -> CheckpointError {
+    CheckpointError::Invalid { path: path.to_path_buf(), problem: problem.into() }
+}
+
+/// A checkpoint as read back.
+pub struct Checkpoint {
+    pub step: u64,
+    pub model: ModelConfig,
+    /// The training configuration, as the trainer wrote it (JSON).
+    pub train_config: String,
+    pub params: HashMap<String, Tensor>,
+    pub adam: HashMap<String, Tensor>,
+    pub adam_steps: u64,
+}
+
+/// Writes the network's parameters and configuration as a model file.
+pub fn save_model(path: &Path, varmap: &VarMap, config: &ModelConfig) -> Result<(), CheckpointError> {
+    let tensors: Vec<(String, Tensor)> =
+        named_parameters(varmap).into_iter().map(|(name, var)| (name, var.as_tensor().clone())).collect();
+    write(path, tensors, model_metadata(config, MODEL_FORMAT))
+}
+
+/// Writes a checkpoint of `step`: parameters, Adam's state and the training configuration.
+pub fn save_checkpoint(
+    path: &Path,
+    varmap: &VarMap,
+    config: &ModelConfig,
+    optimizer: &Adam,
+    step: u64,
+    train_config_json: &str,
+) -> Result<(), CheckpointError> {
+    let mut tensors: Vec<(String, Tensor)> =
+        named_parameters(varmap).into_iter().map(|(name, var)| (name, var.as_tensor().clone())).collect();
+    let (adam, adam_steps) = optimizer.state();
+    let mut adam: Vec<(String, Tensor)> = adam.into_iter().collect();
+    adam.sort_by(|a, b| a.0.cmp(&b.0));
+    tensors.extend(adam);
+    let mut metadata = model_metadata(config, CHECKPOINT_FORMAT);
+    metadata.insert("ivp.step".into(), step.to_string());
+    metadata.insert("ivp.adam_steps".into(), adam_steps.to_string());
+    metadata.insert("ivp.train_config".into(), train_config_json.to_string());
+    write(path, tensors, metadata)
+}
+
+/// Reads a checkpoint, checking that it is one and that it is complete.
+pub fn load_checkpoint(path: &Path) -> Result<Checkpoint, CheckpointError> {
+    let (tensors, metadata) = read(path, CHECKPOINT_FORMAT)?;
+    let model = model_config_from(path, &metadata)?;
+    let number = |key: &str| -> Result<u64, CheckpointError> {
+        metadata
+            .get(key)
+            .ok_or_else(|| invalid(path, format!("metadata `{key}` is missing")))?
+            .parse()
+            .map_err(|_| invalid(path, format!("metadata `{key}` is not a whole number")))
+    };
+    let (step, adam_steps) = (number("ivp.step")?, number("ivp.adam_steps")?);
+    let train_config = metadata.get("ivp.train_config").cloned().unwrap_or_default();
+    let (adam, params): (HashMap<_, _>, HashMap<_, _>) = tensors.into_iter().partition(|(k, _)| k.starts_with("adam."));
+    Ok(Checkpoint { step, model, train_config, params, adam, adam_steps })
+}
+
+/// Writes the model file of a checkpoint (or copies a model file), after checking that its
+/// parameters build the network its metadata describes.
+pub fn export_model(checkpoint: &Path, out: &Path) -> Result<ModelConfig, CheckpointError> {
+    let (_, config, mut tensors) = read_model(checkpoint)?;
+    let mut tensors: Vec<(String, Tensor)> = tensors.drain().collect();
+    tensors.sort_by(|a, b| a.0.cmp(&b.0));
+    write(out, tensors, model_metadata(&config, MODEL_FORMAT))?;
+    Ok(config)
+}
+
+/// Reads a model file (or the parameters of a checkpoint) and builds the network.
+pub fn load_model(path: &Path) -> Result<(IvpNet, ModelConfig), CheckpointError> {
+    let (net, config, _) = read_model(path)?;
+    Ok((net, config))
+}
+
+fn read_model(path: &Path) -> Result<(IvpNet, ModelConfig, HashMap<String, Tensor>), CheckpointError> {
+    let bytes = std::fs::read(path)
+        .map_err(|e| CheckpointError::Data(ivp_data::DataError::io(path, "cannot read model file", e)))?;
+    let metadata = metadata_of(path, &bytes)?;
+    let format = metadata.get("ivp.format").map(String::as_str).unwrap_or("");
+    if format != MODEL_FORMAT && format != CHECKPOINT_FORMAT {
+        return Err(invalid(path, format!("not an ivp model file (format `{format}`, expected `{MODEL_FORMAT}`)")));
+    }
+    let config = model_config_from(path, &metadata)?;
+    let mut tensors = tensors_of(path, &bytes)?;
+    tensors.retain(|name, _| !name.starts_with("adam."));
+    let net = network_from(path, &tensors, config)?;
+    Ok((net, config, tensors))
+}
+
+/// Builds a network of `config` from named parameters, checking that every parameter is present
+/// with its shape and that nothing is left over (strict, like PyTorch's `load_state_dict`).
+pub fn network_from(
+    path: &Path,
+    tensors: &HashMap<String, Tensor>,
+    config: ModelConfig,
+) -> Result<IvpNet, CheckpointError> {
+    let (net, varmap) = IvpNet::seeded(config, 0).map_err(|e| invalid(path, e.to_string()))?;
+    let expected = named_parameters(&varmap);
+    for (name, var) in &expected {
+        let Some(t) = tensors.get(name) else {
+            return Err(invalid(path, format!("parameter `{name}` is missing (a {config:?} network needs it)")));
+        };
+        if t.dims() != var.dims() {
+            return Err(invalid(
+                path,
+                format!("parameter `{name}` has shape {:?}, expected {:?}", t.dims(), var.dims()),
+            ));
+        }
+        var.set(t).map_err(|e| invalid(path, format!("parameter `{name}`: {e}")))?;
+    }
+    if let Some(extra) = tensors.keys().find(|k| !expected.iter().any(|(n, _)| n == *k)) {
+        return Err(invalid(path, format!("unexpected tensor `{extra}` for a {config:?} network")));
+    }
+    Ok(net)
+}
+
+/// Copies named parameters into the variables of `varmap` (for a resumed run).
+pub fn restore_parameters(
+    path: &Path,
+    varmap: &VarMap,
+    tensors: &HashMap<String, Tensor>,
+) -> Result<(), CheckpointError> {
+    for (name, var) in named_parameters(varmap) {
+        let t = tensors.get(&name).ok_or_else(|| invalid(path, format!("parameter `{name}` is missing")))?;
+        if t.dims() != var.dims() {
+            return Err(invalid(
+                path,
+                format!("parameter `{name}` has shape {:?}, expected {:?}", t.dims(), var.dims()),
+            ));
+        }
+        var.set(t).map_err(|e| invalid(path, format!("parameter `{name}`: {e}")))?;
+    }
+    Ok(())
+}
+
+/// A network's variables and a builder over them: the trainer's view of a model.
+pub fn varbuilder(varmap: &VarMap) -> VarBuilder<'static> {
+    VarBuilder::from_varmap(varmap, candle_core::DType::F32, &Device::Cpu)
+}
+
+fn model_metadata(config: &ModelConfig, format: &str) -> HashMap<String, String> {
+    HashMap::from([
+        ("ivp.format".to_string(), format.to_string()),
+        ("ivp.variant".to_string(), config.variant.as_str().to_string()),
+        ("ivp.width_mult".to_string(), config.width_mult.to_string()),
+        ("ivp.version".to_string(), env!("CARGO_PKG_VERSION").to_string()),
+    ])
+}
+
+fn model_config_from(path: &Path, metadata: &HashMap<String, String>) -> Result<ModelConfig, CheckpointError> {
+    let get = |key: &str| metadata.get(key).ok_or_else(|| invalid(path, format!("metadata `{key}` is missing")));
+    let variant = get("ivp.variant")?.parse().map_err(|e: String| invalid(path, e))?;
+    let width_mult: f64 =
+        get("ivp.width_mult")?.parse().map_err(|_| invalid(path, "metadata `ivp.width_mult` is not a number"))?;
+    if !(width_mult > 0.0 && width_mult.is_finite()) {
+        return Err(invalid(path, format!("metadata `ivp.width_mult` is {width_mult}, expected a positive number")));
+    }
+    Ok(ModelConfig { variant, width_mult })
+}
+
+fn write(
+    path: &Path,
+    tensors: Vec<(String, Tensor)>,
+    metadata: HashMap<String, String>,
+) -> Result<(), CheckpointError> {
+    let bytes = safetensors::serialize(tensors, Some(metadata))
+        .map_err(|e| invalid(path, format!("cannot serialise tensors: {e}")))?;
+    ivp_data::write_atomically(path, &bytes)?;
+    Ok(())
+}
+
+fn read(path: &Path, format: &str) -> Result<(HashMap<String, Tensor>, HashMap<String, String>), CheckpointError> {
+    let bytes =
+        std::fs::read(path).map_err(|e| CheckpointError::Data(ivp_data::DataError::io(path, "cannot read", e)))?;
+    let metadata = metadata_of(path, &bytes)?;
+    let found = metadata.get("ivp.format").map(String::as_str).unwrap_or("");
+    if found != format {
+        return Err(invalid(path, format!("not an ivp checkpoint (format `{found}`, expected `{format}`)")));
+    }
+    Ok((tensors_of(path, &bytes)?, metadata))
+}
+
+fn metadata_of(path: &Path, bytes: &[u8]) -> Result<HashMap<String, String>, CheckpointError> {
+    let (_, metadata) = safetensors::SafeTensors::read_metadata(bytes)
+        .map_err(|e| invalid(path, format!("not a readable safetensors file (truncated or corrupt?): {e}")))?;
+    Ok(metadata.metadata().clone().unwrap_or_default())
+}
+
+fn tensors_of(path: &Path, bytes: &[u8]) -> Result<HashMap<String, Tensor>, CheckpointError> {
+    // Reads (and so checks) every tensor's data, not only the header.
+    let tensors = candle_core::safetensors::load_buffer(bytes, &Device::Cpu)
+        .map_err(|e| invalid(path, format!("not a readable safetensors file (truncated or corrupt?): {e}")))?;
+    for (name, t) in &tensors {
+        if t.dtype() != candle_core::DType::F32 {
+            return Err(invalid(path, format!("tensor `{name}` is {:?}, expected f32", t.dtype())));
+        }
+    }
+    Ok(tensors)
+}

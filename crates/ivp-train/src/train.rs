@@ -1,0 +1,463 @@
+//! The training loop: configuration, one step (forward, losses, backward, Adam), validation,
+//! checkpoints and resume. Read top to bottom: [`TrainConfig`], [`train`], then its helpers.
+//!
+//! A run folder holds `config.toml` (the configuration as run), `metrics.csv`, `loss.png`,
+//! `checkpoints/step_NNNNNNNN.safetensors` (the last `keep_checkpoints`) and, at the end,
+//! `model.safetensors`. The batch of step `s` is a function of the seed and `s` alone, and every
+//! operator reduces in a fixed order, so a resumed run continues bit-identically.
+
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use anyhow::{bail, ensure, Context, Result};
+use candle_core::Tensor;
+use candle_nn::VarMap;
+use ivp_core::loss::{ivp_loss, LossWeights};
+use ivp_core::model::{named_parameters, IvpNet, ModelConfig, NetInput, Variant};
+use ivp_core::optim::{Adam, AdamConfig};
+use ivp_data::samples::{
+    Batch, ClipSource, DatasetSource, SampleConfig, SampleGenerator, SampleStream, Split, StreamOptions,
+    SyntheticSource,
+};
+use ivp_data::SceneParams;
+use serde::{Deserialize, Serialize};
+
+use crate::checkpoint::{load_checkpoint, restore_parameters, save_checkpoint, save_model};
+use crate::validation::{ValidationScores, ValidationSet};
+
+/// Everything that defines a training run. The defaults are the 30-minute recipe for 2 cores.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct TrainConfig {
+    /// A dataset folder of clips; `None` trains on generated scenes.
+    pub data: Option<PathBuf>,
+    /// `full`, `intensity`, `no-tg` or `no-depth`.
+    pub variant: String,
+    pub width_mult: f64,
+    pub steps: u64,
+    pub batch: usize,
+    pub crop: usize,
+    pub lr: f64,
+    pub seed: u64,
+    /// Steps between two log rows of `metrics.csv` (training losses averaged over them).
+    pub log_every: u64,
+    /// Steps between two validations (0: only at the end).
+    pub validate_every: u64,
+    /// Samples in the fixed validation set.
+    pub validation_samples: usize,
+    /// Iterations of the test-time infilling in validation (SPEC §6.5).
+    pub iterations: usize,
+    /// Steps between two checkpoints.
+    pub checkpoint_every: u64,
+    /// Checkpoints kept in `checkpoints/` (older ones are deleted).
+    pub keep_checkpoints: usize,
+    /// Background threads that make batches.
+    pub data_workers: usize,
+}
+
+impl Default for TrainConfig {
+    fn default() -> Self {
+        Self {
+            data: None,
+            variant: Variant::Full.as_str().to_string(),
+            width_mult: 0.25,
+            steps: 3000,
+            batch: 8,
+            crop: 128,
+            lr: 5e-4,
+            seed: 0,
+            log_every: 25,
+            validate_every: 500,
+            validation_samples: 48,
+            iterations: ivp_core::iterative::DEFAULT_ITERATIONS,
+            checkpoint_every: 250,
+            keep_checkpoints: 3,
+            data_workers: 1,
+        }
+    }
+}
+
+impl TrainConfig {
+    /// Reads a TOML file of [`TrainConfig`] fields (any subset; the rest keep their defaults).
+    pub fn from_toml_file(path: &Path) -> Result<Self> {
+        let text = std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))?;
+        toml::from_str(&text).with_context(|| format!("{}: not a valid training configuration", path.display()))
+    }
+
+    pub fn model(&self) -> Result<ModelConfig> {
+        let variant: Variant = self.variant.parse().map_err(anyhow::Error::msg)?;
+        Ok(ModelConfig { variant, width_mult: self.width_mult })
+    }
+
+    pub fn validate(&self) -> Result<()> {
+        self.model()?;
+        ensure!(
+            self.width_mult > 0.0 && self.width_mult <= 4.0,
+            "width_mult must be in (0, 4], got {}",
+            self.width_mult
+        );
+        ensure!(self.steps > 0, "steps must be at least 1");
+        ensure!(self.batch > 0, "batch must be at least 1");
+        ensure!(self.crop >= 16, "crop must be at least 16, got {}", self.crop);
+        ensure!(self.lr > 0.0 && self.lr.is_finite(), "lr must be a positive number, got {}", self.lr);
+        ensure!(self.log_every > 0 && self.checkpoint_every > 0, "log_every and checkpoint_every must be at least 1");
+        ensure!(self.keep_checkpoints > 0, "keep_checkpoints must be at least 1");
+        ensure!(self.iterations > 0, "iterations must be at least 1");
+        Ok(())
+    }
+
+    fn sample_config(&self) -> SampleConfig {
+        SampleConfig { seed: self.seed, crop: self.crop, batch_size: self.batch, ..SampleConfig::default() }
+    }
+
+    /// Where the clips come from: the dataset, or scenes rendered at twice the crop (at least 320x240).
+    fn source(&self) -> Result<Arc<dyn ClipSource>> {
+        Ok(match &self.data {
+            Some(dir) => Arc::new(DatasetSource::open(dir)?),
+            None => {
+                let width = (2 * self.crop).max(320);
+                let height = (3 * self.crop / 2).max(240);
+                Arc::new(SyntheticSource::new(SceneParams { width, height, ..SceneParams::default() }))
+            }
+        })
+    }
+}
+
+/// The loss terms of one step, as numbers.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct LossValues {
+    pub mse: f32,
+    pub ssim: f32,
+    pub smooth: f32,
+    pub total: f32,
+}
+
+/// How a run is watched and stopped; nothing here changes its results.
+#[derive(Clone, Debug, Default)]
+pub struct RunOptions {
+    /// Continue from the last checkpoint of the run folder.
+    pub resume: bool,
+    pub progress: bool,
+    /// Set (by Ctrl-C) to stop after the current step with a checkpoint.
+    pub stop: Option<Arc<AtomicBool>>,
+}
+
+/// What a finished (or stopped) run reports.
+#[derive(Clone, Debug)]
+pub struct TrainSummary {
+    pub steps_done: u64,
+    pub stopped_early: bool,
+    pub elapsed: Duration,
+    pub last_validation: Option<ValidationScores>,
+    pub fill: Option<ValidationScores>,
+    pub model_path: Option<PathBuf>,
+}
+
+/// Trains a network as `config` says, in `run_dir`.
+pub fn train(config: &TrainConfig, run_dir: &Path, options: &RunOptions) -> Result<TrainSummary> {
+    config.validate()?;
+    let model_config = config.model()?;
+    let checkpoints = run_dir.join("checkpoints");
+    std::fs::create_dir_all(&checkpoints).with_context(|| format!("cannot create {}", checkpoints.display()))?;
+
+    let (net, varmap) = IvpNet::seeded(model_config, config.seed)?;
+    let mut optimizer = Adam::new(named_parameters(&varmap), AdamConfig { lr: config.lr, ..AdamConfig::default() })?;
+    let mut log = MetricsLog::new(run_dir.join("metrics.csv"));
+    let mut first_step = 0;
+    let mut elapsed_before = Duration::ZERO;
+    match (latest_checkpoint(&checkpoints)?, options.resume) {
+        (Some(path), true) => {
+            let ckpt = load_checkpoint(&path)?;
+            let saved: TrainConfig = serde_json::from_str(&ckpt.train_config)
+                .with_context(|| format!("{}: unreadable training configuration", path.display()))?;
+            ensure!(
+                TrainConfig { steps: config.steps, ..saved.clone() } == *config,
+                "{}: the run was started with another configuration (only --steps may change on resume):\n{saved:#?}",
+                path.display()
+            );
+            restore_parameters(&path, &varmap, &ckpt.params)?;
+            optimizer.load_state(&ckpt.adam, ckpt.adam_steps)?;
+            first_step = ckpt.step;
+            log = MetricsLog::resume(run_dir.join("metrics.csv"), first_step)?;
+            elapsed_before = log.last_elapsed();
+            tracing::info!("resuming {} at step {first_step}", run_dir.display());
+        }
+        (None, true) => bail!("{}: nothing to resume (no checkpoint in {})", run_dir.display(), checkpoints.display()),
+        (Some(path), false) => bail!(
+            "{} already holds a run (last checkpoint {}): pass --resume to continue it, or choose another --out",
+            run_dir.display(),
+            path.display()
+        ),
+        (None, false) => {}
+    }
+    let config_text = toml::to_string(config)?;
+    ivp_data::write_atomically(&run_dir.join("config.toml"), config_text.as_bytes())?;
+    let config_json = serde_json::to_string(config)?;
+
+    let source = config.source()?;
+    let validation = ValidationSet::new(source.clone(), config.sample_config(), config.validation_samples)?;
+    let fill = validation.score_fill();
+    let generator = Arc::new(SampleGenerator::new(source, config.sample_config(), Split::Train)?);
+    let mut stream = SampleStream::start(
+        generator,
+        first_step,
+        StreamOptions { workers: config.data_workers, ..Default::default() },
+    )?;
+
+    let weights = LossWeights::default();
+    let bar = crate::eval::progress_bar(options.progress, config.steps, "training");
+    bar.set_position(first_step);
+    let start = Instant::now();
+    let elapsed = || elapsed_before + start.elapsed();
+    let mut window = LossWindow::default();
+    let mut last_validation = None;
+    let mut step = first_step;
+    let mut stopped_early = false;
+    let checkpoint = |step: u64, optimizer: &Adam| -> Result<()> {
+        let path = checkpoints.join(format!("step_{step:08}.safetensors"));
+        save_checkpoint(&path, &varmap, &model_config, optimizer, step, &config_json)?;
+        prune_checkpoints(&checkpoints, config.keep_checkpoints)
+    };
+    while step < config.steps {
+        let batch = stream.next_batch()?;
+        debug_assert_eq!(batch.step, step);
+        let loss = training_step(&net, &mut optimizer, &batch_input(&batch), &batch.truth, &weights)
+            .with_context(|| format!("training stopped at step {step}; the last good checkpoint is kept"))?;
+        step += 1;
+        window.add(&loss);
+        bar.set_position(step);
+        let samples_per_s = (step - first_step) as f64 * config.batch as f64 / start.elapsed().as_secs_f64();
+        bar.set_message(format!("loss {:.4}, {samples_per_s:.1} samples/s", loss.total));
+
+        let validate_now = (config.validate_every > 0 && step % config.validate_every == 0) || step == config.steps;
+        if step % config.log_every == 0 || validate_now {
+            let scores = validate_now.then(|| validation.score_network(&net, config.iterations)).transpose()?;
+            if let Some(s) = &scores {
+                bar.println(format!(
+                    "step {step}: validation D-MSE {:.1} D-SSIM {:.4} (fill {:.1} / {:.4})",
+                    s.d_mse, s.d_ssim, fill.d_mse, fill.d_ssim
+                ));
+                last_validation = Some(*s);
+            }
+            log.push(MetricsRow { step, loss: window.take(), validation: scores, fill, elapsed: elapsed() });
+            log.save()?;
+        }
+        if step % config.checkpoint_every == 0 || step == config.steps {
+            checkpoint(step, &optimizer)?;
+        }
+        if options.stop.as_ref().is_some_and(|s| s.load(Ordering::SeqCst)) && step < config.steps {
+            if step % config.checkpoint_every != 0 {
+                checkpoint(step, &optimizer)?;
+            }
+            bar.println(format!("stopped at step {step}; continue with --resume"));
+            stopped_early = true;
+            break;
+        }
+    }
+    bar.finish_and_clear();
+    drop(stream);
+    crate::plot::write_loss_curve(&run_dir.join("loss.png"), log.rows())?;
+    let model_path = (!stopped_early).then(|| run_dir.join("model.safetensors"));
+    if let Some(path) = &model_path {
+        save_model(path, &varmap, &model_config)?;
+    }
+    Ok(TrainSummary {
+        steps_done: step,
+        stopped_early,
+        elapsed: elapsed(),
+        last_validation,
+        fill: Some(fill),
+        model_path,
+    })
+}
+
+/// One optimisation step on `input` with ground truth `truth`; returns the losses before the update.
+/// A non-finite loss is an error and leaves the parameters untouched.
+pub fn training_step(
+    net: &IvpNet,
+    optimizer: &mut Adam,
+    input: &NetInput<'_>,
+    truth: &Tensor,
+    weights: &LossWeights,
+) -> Result<LossValues> {
+    let out = net.forward(input)?;
+    let terms = ivp_loss(&out.frame, truth, input.mask, out.vectors.as_ref(), weights)?;
+    let scalar = |t: &Tensor| -> Result<f32> { Ok(t.to_scalar::<f32>()?) };
+    let values = LossValues {
+        mse: scalar(&terms.mse)?,
+        ssim: scalar(&terms.ssim)?,
+        smooth: scalar(&terms.smooth)?,
+        total: scalar(&terms.total)?,
+    };
+    if !values.total.is_finite() {
+        bail!("the loss is not finite ({values:?})");
+    }
+    let grads = terms.total.backward()?;
+    optimizer.step(&grads)?;
+    Ok(values)
+}
+
+pub fn batch_input(batch: &Batch) -> NetInput<'_> {
+    NetInput {
+        prior: &batch.prior,
+        warped_depth: &batch.warped_depth,
+        mask: &batch.mask,
+        warped: &batch.warped,
+        last: Some(&batch.last),
+        last_warped: Some(&batch.last_warped),
+    }
+}
+
+/// The newest checkpoint of a folder, by step.
+pub fn latest_checkpoint(dir: &Path) -> Result<Option<PathBuf>> {
+    Ok(checkpoint_files(dir)?.pop())
+}
+
+/// Checkpoint files sorted by step (their names sort by step).
+fn checkpoint_files(dir: &Path) -> Result<Vec<PathBuf>> {
+    if !dir.is_dir() {
+        return Ok(Vec::new());
+    }
+    let mut files: Vec<PathBuf> = std::fs::read_dir(dir)
+        .with_context(|| format!("cannot list {}", dir.display()))?
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| {
+            let name = p.file_name().and_then(|n| n.to_str()).unwrap_or("");
+            name.starts_with("step_") && name.ends_with(".safetensors")
+        })
+        .collect();
+    files.sort();
+    Ok(files)
+}
+
+fn prune_checkpoints(dir: &Path, keep: usize) -> Result<()> {
+    let files = checkpoint_files(dir)?;
+    for old in &files[..files.len().saturating_sub(keep)] {
+        std::fs::remove_file(old).with_context(|| format!("cannot delete old checkpoint {}", old.display()))?;
+    }
+    Ok(())
+}
+
+/// Training losses accumulated between two log rows.
+#[derive(Default)]
+struct LossWindow {
+    sum: [f64; 4],
+    count: u32,
+}
+
+impl LossWindow {
+    fn add(&mut self, l: &LossValues) {
+        for (s, v) in self.sum.iter_mut().zip([l.mse, l.ssim, l.smooth, l.total]) {
+            *s += v as f64;
+        }
+        self.count += 1;
+    }
+
+    /// The mean since the last call.
+    fn take(&mut self) -> LossValues {
+        let n = self.count.max(1) as f64;
+        let m = self.sum.map(|s| (s / n) as f32);
+        *self = Self::default();
+        LossValues { mse: m[0], ssim: m[1], smooth: m[2], total: m[3] }
+    }
+}
+
+/// One row of `metrics.csv`.
+#[derive(Clone, Debug)]
+pub struct MetricsRow {
+    pub step: u64,
+    pub loss: LossValues,
+    pub validation: Option<ValidationScores>,
+    pub fill: ValidationScores,
+    pub elapsed: Duration,
+}
+
+const METRICS_HEADER: &str = "step,mse,ssim,smooth,total,val_d_mse,val_d_ssim,fill_d_mse,fill_d_ssim,elapsed_s";
+
+/// `metrics.csv`, rewritten atomically after every row so that it is always complete.
+struct MetricsLog {
+    path: PathBuf,
+    rows: Vec<MetricsRow>,
+}
+
+impl MetricsLog {
+    fn new(path: PathBuf) -> Self {
+        Self { path, rows: Vec::new() }
+    }
+
+    /// The log of a run resumed at `step`: rows after it are dropped (they will be run again).
+    fn resume(path: PathBuf, step: u64) -> Result<Self> {
+        let mut rows = Vec::new();
+        if path.exists() {
+            let text = std::fs::read_to_string(&path).with_context(|| format!("cannot read {}", path.display()))?;
+            for (i, line) in text.lines().enumerate().skip(1) {
+                let row =
+                    parse_row(line).with_context(|| format!("{}: line {}: malformed row", path.display(), i + 1))?;
+                if row.step <= step {
+                    rows.push(row);
+                }
+            }
+        }
+        Ok(Self { path, rows })
+    }
+
+    fn push(&mut self, row: MetricsRow) {
+        self.rows.push(row);
+    }
+
+    fn rows(&self) -> &[MetricsRow] {
+        &self.rows
+    }
+
+    fn last_elapsed(&self) -> Duration {
+        self.rows.last().map_or(Duration::ZERO, |r| r.elapsed)
+    }
+
+    fn save(&self) -> Result<()> {
+        let mut text = String::from(METRICS_HEADER);
+        text.push('\n');
+        for r in &self.rows {
+            let v = r
+                .validation
+                .map_or((String::new(), String::new()), |v| (format!("{:.3}", v.d_mse), format!("{:.5}", v.d_ssim)));
+            text.push_str(&format!(
+                "{},{:.6},{:.6},{:.6},{:.6},{},{},{:.3},{:.5},{:.1}\n",
+                r.step,
+                r.loss.mse,
+                r.loss.ssim,
+                r.loss.smooth,
+                r.loss.total,
+                v.0,
+                v.1,
+                r.fill.d_mse,
+                r.fill.d_ssim,
+                r.elapsed.as_secs_f64()
+            ));
+        }
+        ivp_data::write_atomically(&self.path, text.as_bytes())?;
+        Ok(())
+    }
+}
+
+fn parse_row(line: &str) -> Result<MetricsRow> {
+    let f: Vec<&str> = line.split(',').collect();
+    ensure!(f.len() == 10, "{} fields, expected 10", f.len());
+    let num =
+        |i: usize| -> Result<f64> { f[i].parse::<f64>().with_context(|| format!("field {} is `{}`", i + 1, f[i])) };
+    let validation = (!f[5].is_empty())
+        .then(|| -> Result<ValidationScores> { Ok(ValidationScores { d_mse: num(5)?, d_ssim: num(6)? }) });
+    Ok(MetricsRow {
+        step: f[0].parse().with_context(|| format!("step `{}`", f[0]))?,
+        loss: LossValues { mse: num(1)? as f32, ssim: num(2)? as f32, smooth: num(3)? as f32, total: num(4)? as f32 },
+        validation: validation.transpose()?,
+        fill: ValidationScores { d_mse: num(7)?, d_ssim: num(8)? },
+        elapsed: Duration::from_secs_f64(num(9)?.max(0.0)),
+    })
+}
+
+/// The variables of a network, for callers that train outside [`train`] (tests, benchmarks).
+pub fn seeded_network(config: &TrainConfig) -> Result<(IvpNet, VarMap)> {
+    Ok(IvpNet::seeded(config.model()?, config.seed)?)
+}
