@@ -101,6 +101,9 @@ struct TrainArgs {
     /// Continue the run in --out from its last checkpoint (bit-identical to an uninterrupted run).
     #[arg(long)]
     resume: bool,
+    /// Stop after this step with a checkpoint, as Ctrl-C does; continue later with --resume.
+    #[arg(long)]
+    stop_at: Option<u64>,
 }
 
 #[derive(Args)]
@@ -476,7 +479,7 @@ fn run_train(args: TrainArgs, progress: bool) -> Result<()> {
         config.crop,
         args.out.display()
     );
-    let options = RunOptions { resume: args.resume, progress, stop: Some(stop) };
+    let options = RunOptions { resume: args.resume, progress, stop: Some(stop), stop_at: args.stop_at };
     let summary = train(&config, &args.out, &options)?;
     let minutes = summary.elapsed.as_secs_f64() / 60.0;
     if let (Some(v), Some(f)) = (summary.last_validation, summary.fill) {

@@ -39,7 +39,13 @@ pub struct TrainConfig {
     pub steps: u64,
     pub batch: usize,
     pub crop: usize,
+    /// Peak learning rate of Adam.
     pub lr: f64,
+    /// Steps of linear warm-up from 0 to `lr`.
+    pub warmup_steps: u64,
+    /// Learning rate at the last step, as a fraction of `lr` (cosine decay after the warm-up;
+    /// 1 keeps it constant).
+    pub final_lr_fraction: f64,
     pub seed: u64,
     /// Steps between two log rows of `metrics.csv` (training losses averaged over them).
     pub log_every: u64,
@@ -67,6 +73,8 @@ impl Default for TrainConfig {
             batch: 8,
             crop: 128,
             lr: 5e-4,
+            warmup_steps: 100,
+            final_lr_fraction: 0.1,
             seed: 0,
             log_every: 25,
             validate_every: 500,
@@ -102,10 +110,27 @@ impl TrainConfig {
         ensure!(self.batch > 0, "batch must be at least 1");
         ensure!(self.crop >= 16, "crop must be at least 16, got {}", self.crop);
         ensure!(self.lr > 0.0 && self.lr.is_finite(), "lr must be a positive number, got {}", self.lr);
+        ensure!(
+            (0.0..=1.0).contains(&self.final_lr_fraction),
+            "final_lr_fraction must be in [0, 1], got {}",
+            self.final_lr_fraction
+        );
         ensure!(self.log_every > 0 && self.checkpoint_every > 0, "log_every and checkpoint_every must be at least 1");
         ensure!(self.keep_checkpoints > 0, "keep_checkpoints must be at least 1");
         ensure!(self.iterations > 0, "iterations must be at least 1");
         Ok(())
+    }
+
+    /// The learning rate of step `step` (0-based): linear warm-up, then cosine decay to
+    /// `lr * final_lr_fraction` at the last step.
+    pub fn lr_at(&self, step: u64) -> f64 {
+        if step < self.warmup_steps {
+            return self.lr * (step + 1) as f64 / self.warmup_steps as f64;
+        }
+        let decay_steps = self.steps.saturating_sub(self.warmup_steps).max(1);
+        let progress = ((step - self.warmup_steps) as f64 / decay_steps as f64).min(1.0);
+        let cosine = 0.5 * (1.0 + (std::f64::consts::PI * progress).cos());
+        self.lr * (self.final_lr_fraction + (1.0 - self.final_lr_fraction) * cosine)
     }
 
     fn sample_config(&self) -> SampleConfig {
@@ -142,6 +167,8 @@ pub struct RunOptions {
     pub progress: bool,
     /// Set (by Ctrl-C) to stop after the current step with a checkpoint.
     pub stop: Option<Arc<AtomicBool>>,
+    /// Stop after this step with a checkpoint, as Ctrl-C does (to train in several sittings).
+    pub stop_at: Option<u64>,
 }
 
 /// What a finished (or stopped) run reports.
@@ -223,6 +250,7 @@ pub fn train(config: &TrainConfig, run_dir: &Path, options: &RunOptions) -> Resu
     while step < config.steps {
         let batch = stream.next_batch()?;
         debug_assert_eq!(batch.step, step);
+        optimizer.set_lr(config.lr_at(step));
         let loss = training_step(&net, &mut optimizer, &batch_input(&batch), &batch.truth, &weights)
             .with_context(|| format!("training stopped at step {step}; the last good checkpoint is kept"))?;
         step += 1;
@@ -247,7 +275,8 @@ pub fn train(config: &TrainConfig, run_dir: &Path, options: &RunOptions) -> Resu
         if step % config.checkpoint_every == 0 || step == config.steps {
             checkpoint(step, &optimizer)?;
         }
-        if options.stop.as_ref().is_some_and(|s| s.load(Ordering::SeqCst)) && step < config.steps {
+        let interrupted = options.stop.as_ref().is_some_and(|s| s.load(Ordering::SeqCst));
+        if (interrupted || options.stop_at == Some(step)) && step < config.steps {
             if step % config.checkpoint_every != 0 {
                 checkpoint(step, &optimizer)?;
             }

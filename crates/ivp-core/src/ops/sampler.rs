@@ -33,6 +33,9 @@ pub fn sample_bilinear(image: &Tensor, vectors: &Tensor) -> Result<Tensor> {
     profile::timed("sampler", || image.contiguous()?.apply_op2(&vectors.contiguous()?, Sampler))
 }
 
+/// Farther than any frame is wide or high (and exact in f32).
+const FAR: f32 = 16_777_216.0;
+
 /// The four corners of a bilinear read at (sx, sy) in an h x w plane: the top-left corner
 /// (x0, y0) = floor and the fractions (fx, fy) in [0, 1).
 #[derive(Clone, Copy, Debug)]
@@ -45,6 +48,10 @@ struct Corners {
 
 impl Corners {
     fn new(sx: f32, sy: f32) -> Self {
+        // Reads far outside the frame (huge or non-finite vectors) read 0 wherever they are: move
+        // them to a position that is outside every frame but whose corner indices cannot overflow.
+        let tame = |s: f32| if s.is_finite() { s.clamp(-FAR, FAR) } else { -FAR };
+        let (sx, sy) = (tame(sx), tame(sy));
         let (x0, y0) = (sx.floor(), sy.floor());
         Self { x0: x0 as isize, y0: y0 as isize, fx: sx - x0, fy: sy - y0 }
     }
@@ -423,5 +430,18 @@ mod tests {
         let want = sample_bilinear(&img_t.contiguous().unwrap(), &vec_t.contiguous().unwrap()).unwrap();
         assert_eq!(flat(&sample_bilinear(&img_t, &vec_t).unwrap()), flat(&want));
         assert!(sample_bilinear(&img, &vec_t).is_err());
+    }
+
+    #[test]
+    fn huge_and_non_finite_vectors_read_zero_with_zero_gradients() {
+        for a in [1e6, -1e6, 1e30, -1e30, f32::MAX, f32::MIN, f32::INFINITY, f32::NEG_INFINITY, f32::NAN] {
+            assert_eq!(case(a, 0.0), vec![0.0; 12], "a = {a}");
+            assert_eq!(case(0.0, a), vec![0.0; 12], "b = {a}");
+            let img = Var::from_tensor(&tensor((0..12).map(|v| v as f32).collect(), &[1, 1, 3, 4])).unwrap();
+            let vec = Var::from_tensor(&tensor(vec![a; 24], &[1, 2, 3, 4])).unwrap();
+            let g = sample_bilinear(&img, &vec).unwrap().sum_all().unwrap().backward().unwrap();
+            assert!(flat(g.get(&img).unwrap()).iter().all(|v| *v == 0.0));
+            assert!(flat(g.get(&vec).unwrap()).iter().all(|v| *v == 0.0));
+        }
     }
 }

@@ -1,0 +1,162 @@
+//! Training end to end, on tiny networks and crops so that the suite stays fast: resume equality,
+//! the NaN guard, damaged checkpoints, and generate -> train -> export -> reload -> eval.
+
+use std::path::Path;
+
+use candle_core::Tensor;
+use ivp_core::inference::ModelInfiller;
+use ivp_core::infill::classical_infiller;
+use ivp_train::checkpoint::{export_model, load_checkpoint, load_model};
+use ivp_train::eval::{evaluate, Method};
+use ivp_train::train::{latest_checkpoint, train, RunOptions, TrainConfig};
+
+/// A run small enough for a test: width 1/8, 2 crops of 32x32 per step, 4 validation crops.
+fn tiny(steps: u64) -> TrainConfig {
+    TrainConfig {
+        width_mult: 0.125,
+        steps,
+        batch: 2,
+        crop: 32,
+        warmup_steps: 2,
+        log_every: 2,
+        validate_every: 0,
+        validation_samples: 4,
+        checkpoint_every: 3,
+        keep_checkpoints: 10,
+        ..TrainConfig::default()
+    }
+}
+
+fn quiet() -> RunOptions {
+    RunOptions::default()
+}
+
+/// The parameters of a model file, by name.
+fn parameters(path: &Path) -> Vec<(String, Vec<f32>)> {
+    let mut tensors: Vec<(String, Tensor)> = candle_core::safetensors::load(path, &candle_core::Device::Cpu)
+        .unwrap()
+        .into_iter()
+        .collect();
+    tensors.sort_by(|a, b| a.0.cmp(&b.0));
+    tensors.into_iter().map(|(n, t)| (n, t.flatten_all().unwrap().to_vec1().unwrap())).collect()
+}
+
+#[test]
+fn a_resumed_run_equals_an_uninterrupted_one() {
+    let dir = tempfile::tempdir().unwrap();
+    let (whole, parts) = (dir.path().join("whole"), dir.path().join("parts"));
+    let config = tiny(6);
+    train(&config, &whole, &quiet()).unwrap();
+
+    let first = train(&config, &parts, &RunOptions { stop_at: Some(3), ..quiet() }).unwrap();
+    assert!(first.stopped_early && first.model_path.is_none());
+    assert_eq!(first.steps_done, 3);
+    // Starting again without --resume must not overwrite the run.
+    let err = train(&config, &parts, &quiet()).unwrap_err();
+    assert!(format!("{err:#}").contains("--resume"), "{err:#}");
+    let second = train(&config, &parts, &RunOptions { resume: true, ..quiet() }).unwrap();
+    assert_eq!(second.steps_done, 6);
+
+    assert_eq!(parameters(&whole.join("model.safetensors")), parameters(&parts.join("model.safetensors")));
+    let adam = |run: &Path| {
+        let c = load_checkpoint(&latest_checkpoint(&run.join("checkpoints")).unwrap().unwrap()).unwrap();
+        let mut moments: Vec<(String, Vec<f32>)> =
+            c.adam.iter().map(|(n, t)| (n.clone(), t.flatten_all().unwrap().to_vec1().unwrap())).collect();
+        moments.sort_by(|a, b| a.0.cmp(&b.0));
+        (c.step, c.adam_steps, moments)
+    };
+    assert_eq!(adam(&whole), adam(&parts));
+    // The metrics log of the resumed run has each step once, in order.
+    let csv = std::fs::read_to_string(parts.join("metrics.csv")).unwrap();
+    let steps: Vec<u64> = csv.lines().skip(1).map(|l| l.split(',').next().unwrap().parse().unwrap()).collect();
+    assert_eq!(steps, [2, 4, 6]);
+    assert_eq!(csv.lines().skip(1).map(|l| l.split(',').nth(4).unwrap()).collect::<Vec<_>>().len(), 3);
+    assert!(parts.join("loss.png").is_file());
+}
+
+#[test]
+fn a_diverging_run_stops_with_the_step_and_keeps_the_last_good_checkpoint() {
+    let dir = tempfile::tempdir().unwrap();
+    // A learning rate this large sends the weights to about 1e30 in one step: the next forward
+    // pass overflows.
+    let config = TrainConfig { lr: 1e30, warmup_steps: 0, checkpoint_every: 1, ..tiny(10) };
+    let err = train(&config, dir.path(), &quiet()).unwrap_err();
+    let message = format!("{err:#}");
+    assert!(message.contains("not finite") && message.contains("step"), "{message}");
+    let last = latest_checkpoint(&dir.path().join("checkpoints")).unwrap().expect("a checkpoint before the failure");
+    let step = load_checkpoint(&last).unwrap().step;
+    assert!(message.contains(&format!("step {step}")), "the error names step {step}: {message}");
+    // Every parameter of the kept checkpoint is finite.
+    for (_, t) in load_checkpoint(&last).unwrap().params {
+        let values: Vec<f32> = t.flatten_all().unwrap().to_vec1().unwrap();
+        assert!(values.iter().all(|v| v.is_finite()));
+    }
+    assert!(!dir.path().join("model.safetensors").exists());
+}
+
+#[test]
+fn damaged_checkpoints_give_clear_errors() {
+    let dir = tempfile::tempdir().unwrap();
+    train(&tiny(3), dir.path(), &quiet()).unwrap();
+    let ckpt = latest_checkpoint(&dir.path().join("checkpoints")).unwrap().unwrap();
+    let bytes = std::fs::read(&ckpt).unwrap();
+
+    let truncated = dir.path().join("truncated.safetensors");
+    std::fs::write(&truncated, &bytes[..bytes.len() / 2]).unwrap();
+    let garbage = dir.path().join("garbage.safetensors");
+    std::fs::write(&garbage, b"this is not a safetensors file").unwrap();
+    for path in [&truncated, &garbage] {
+        for message in [
+            load_checkpoint(path).err().map(|e| e.to_string()),
+            load_model(path).err().map(|e| e.to_string()),
+        ] {
+            let message = message.expect("a damaged file must not load");
+            assert!(message.contains(&path.display().to_string()), "names the file: {message}");
+            assert!(message.contains("truncated or corrupt"), "{message}");
+        }
+    }
+    // A model file is not a checkpoint to resume from.
+    let err = load_checkpoint(&dir.path().join("model.safetensors")).err().unwrap().to_string();
+    assert!(err.contains("not an ivp checkpoint"), "{err}");
+
+    // Resuming from a damaged last checkpoint fails and names it.
+    std::fs::write(&ckpt, &bytes[..bytes.len() - 100]).unwrap();
+    let err = train(&tiny(6), dir.path(), &RunOptions { resume: true, ..quiet() }).unwrap_err();
+    assert!(format!("{err:#}").contains(&ckpt.display().to_string()), "{err:#}");
+}
+
+#[test]
+fn generate_train_export_reload_and_evaluate() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = dir.path().join("data");
+    // Small frames and a fast camera, so that every clip has disocclusions to learn from.
+    let params = ivp_data::SceneParams { width: 128, height: 96, frames: 12, motion_scale: 3.0, ..Default::default() };
+    ivp_data::generate_dataset(&data, 3, 7, &params, |_| {}).unwrap();
+
+    let run = dir.path().join("run");
+    let config = TrainConfig { data: Some(data.clone()), ..tiny(4) };
+    let summary = train(&config, &run, &quiet()).unwrap();
+    let validation = summary.last_validation.expect("a validation at the end");
+    assert!(validation.d_mse.is_finite() && validation.d_ssim.is_finite());
+
+    let exported = dir.path().join("exported.safetensors");
+    let ckpt = latest_checkpoint(&run.join("checkpoints")).unwrap().unwrap();
+    let model_config = export_model(&ckpt, &exported).unwrap();
+    assert_eq!(model_config, config.model().unwrap());
+    assert_eq!(parameters(&exported), parameters(&run.join("model.safetensors")));
+
+    let (net, _) = load_model(&exported).unwrap();
+    let methods = vec![
+        Method::Internal(classical_infiller("fill").unwrap()),
+        Method::Internal(Box::new(ModelInfiller::new("ivp", net, 3))),
+    ];
+    let report = evaluate(&data, &[6, 8, 10], &methods, false).unwrap();
+    let ivp = &report.methods[1];
+    assert_eq!(ivp.name, "ivp");
+    assert_eq!(ivp.frames, 9);
+    assert!(ivp.mse.is_finite() && ivp.ssim.is_finite());
+    assert!(ivp.ms_by_stage.contains_key("network"));
+    if let (Some(d), Some(s)) = (ivp.d_mse, ivp.d_ssim) {
+        assert!(d.is_finite() && s.is_finite());
+    }
+}
