@@ -1,5 +1,7 @@
-//! Project chores: `cargo xtask bench`.
+//! Project chores: `cargo xtask bench` (criterion benchmarks, and with `--torch` ivp's training
+//! step and inference against shared/bench/torch_reference.py in the same run).
 
+use std::path::{Path, PathBuf};
 use std::process::Command;
 
 use anyhow::{bail, Context, Result};
@@ -18,12 +20,24 @@ enum Task {
     Bench {
         /// Only benchmarks whose name contains this.
         filter: Option<String>,
+        /// Instead of the criterion benchmarks: time `ivp bench train` and `ivp bench infer`
+        /// against the PyTorch reference (python3 with torch) one after the other, and print
+        /// both figures and their ratio.
+        #[arg(long)]
+        torch: bool,
+        /// Threads for both (the reference's default is 2).
+        #[arg(long, default_value_t = 2)]
+        threads: usize,
+        /// Runs of the training step (inference runs 3 times).
+        #[arg(long, default_value_t = 5)]
+        runs: usize,
     },
 }
 
 fn main() -> Result<()> {
     match Cli::parse().command {
-        Task::Bench { filter } => bench(filter.as_deref()),
+        Task::Bench { torch: true, threads, runs, .. } => bench_against_torch(threads, runs),
+        Task::Bench { filter, .. } => bench(filter.as_deref()),
     }
 }
 
@@ -37,6 +51,55 @@ fn bench(filter: Option<&str>) -> Result<()> {
     let status = cmd.status().context("running cargo bench")?;
     if !status.success() {
         bail!("cargo bench failed: {status}");
+    }
+    Ok(())
+}
+
+/// The workspace root (xtask lives one level below it).
+fn root() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).parent().expect("xtask is inside the workspace").to_path_buf()
+}
+
+/// Runs a command that prints one JSON line last, and returns that line parsed.
+fn json_line(cmd: &mut Command) -> Result<serde_json::Value> {
+    let output = cmd.output().with_context(|| format!("running {cmd:?}"))?;
+    if !output.status.success() {
+        bail!("{cmd:?} failed: {}", String::from_utf8_lossy(&output.stderr));
+    }
+    let stdout = String::from_utf8_lossy(&output.stdout);
+    let line = stdout.lines().last().context("no output")?;
+    serde_json::from_str(line).with_context(|| format!("not a JSON line: {line}"))
+}
+
+fn bench_against_torch(threads: usize, runs: usize) -> Result<()> {
+    let root = root();
+    let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
+    let status = Command::new(&cargo)
+        .current_dir(&root)
+        .args(["build", "--release", "-p", "ivp-train"])
+        .status()
+        .context("building ivp")?;
+    if !status.success() {
+        bail!("cargo build failed");
+    }
+    let ivp = root.join("target/release/ivp");
+    let reference = root.join("../shared/bench/torch_reference.py");
+    if !reference.is_file() {
+        bail!("{} is missing", reference.display());
+    }
+    let threads_arg = threads.to_string();
+    let runs_arg = runs.to_string();
+    let cases: [(&str, Vec<&str>); 2] =
+        [("train", vec!["train", "--runs", &runs_arg]), ("infer", vec!["infer", "--runs", "3"])];
+    println!("| case | ivp median ms | PyTorch median ms | ivp / PyTorch |");
+    println!("|---|---|---|---|");
+    for (name, args) in cases {
+        let ours = json_line(Command::new(&ivp).args(["--threads", &threads_arg, "bench"]).args(&args).arg("--profile"))?;
+        let theirs = json_line(Command::new("python3").arg(&reference).args(&args).args(["--threads", &threads_arg]))?;
+        let (a, b) = (ours["median_ms"].as_f64().unwrap_or(f64::NAN), theirs["median_ms"].as_f64().unwrap_or(f64::NAN));
+        println!("| {} | {a:.0} | {b:.0} | {:.2} |", theirs["case"].as_str().unwrap_or(name), a / b);
+        eprintln!("{name}: ivp {ours}");
+        eprintln!("{name}: torch {theirs}");
     }
     Ok(())
 }

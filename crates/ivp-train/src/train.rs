@@ -88,6 +88,11 @@ impl Default for TrainConfig {
 }
 
 impl TrainConfig {
+    /// The few-minute run of `ivp demo`: the default recipe, shorter.
+    pub fn demo() -> Self {
+        Self { steps: 800, validate_every: 200, checkpoint_every: 200, ..Self::default() }
+    }
+
     /// Reads a TOML file of [`TrainConfig`] fields (any subset; the rest keep their defaults).
     pub fn from_toml_file(path: &Path) -> Result<Self> {
         let text = std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))?;
