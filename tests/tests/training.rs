@@ -33,10 +33,8 @@ fn quiet() -> RunOptions {
 
 /// The parameters of a model file, by name.
 fn parameters(path: &Path) -> Vec<(String, Vec<f32>)> {
-    let mut tensors: Vec<(String, Tensor)> = candle_core::safetensors::load(path, &candle_core::Device::Cpu)
-        .unwrap()
-        .into_iter()
-        .collect();
+    let mut tensors: Vec<(String, Tensor)> =
+        candle_core::safetensors::load(path, &candle_core::Device::Cpu).unwrap().into_iter().collect();
     tensors.sort_by(|a, b| a.0.cmp(&b.0));
     tensors.into_iter().map(|(n, t)| (n, t.flatten_all().unwrap().to_vec1().unwrap())).collect()
 }
@@ -70,7 +68,7 @@ fn a_resumed_run_equals_an_uninterrupted_one() {
     let csv = std::fs::read_to_string(parts.join("metrics.csv")).unwrap();
     let steps: Vec<u64> = csv.lines().skip(1).map(|l| l.split(',').next().unwrap().parse().unwrap()).collect();
     assert_eq!(steps, [2, 4, 6]);
-    assert_eq!(csv.lines().skip(1).map(|l| l.split(',').nth(4).unwrap()).collect::<Vec<_>>().len(), 3);
+    assert_eq!(csv.lines().skip(1).map(|l| l.split(',').nth(5).unwrap()).collect::<Vec<_>>().len(), 3);
     assert!(parts.join("loss.png").is_file());
 }
 
@@ -106,10 +104,9 @@ fn damaged_checkpoints_give_clear_errors() {
     let garbage = dir.path().join("garbage.safetensors");
     std::fs::write(&garbage, b"this is not a safetensors file").unwrap();
     for path in [&truncated, &garbage] {
-        for message in [
-            load_checkpoint(path).err().map(|e| e.to_string()),
-            load_model(path).err().map(|e| e.to_string()),
-        ] {
+        for message in
+            [load_checkpoint(path).err().map(|e| e.to_string()), load_model(path).err().map(|e| e.to_string())]
+        {
             let message = message.expect("a damaged file must not load");
             assert!(message.contains(&path.display().to_string()), "names the file: {message}");
             assert!(message.contains("truncated or corrupt"), "{message}");

@@ -94,7 +94,8 @@ fn bench_against_torch(threads: usize, runs: usize) -> Result<()> {
     println!("| case | ivp median ms | PyTorch median ms | ivp / PyTorch |");
     println!("|---|---|---|---|");
     for (name, args) in cases {
-        let ours = json_line(Command::new(&ivp).args(["--threads", &threads_arg, "bench"]).args(&args).arg("--profile"))?;
+        let ours =
+            json_line(Command::new(&ivp).args(["--threads", &threads_arg, "bench"]).args(&args).arg("--profile"))?;
         let theirs = json_line(Command::new("python3").arg(&reference).args(&args).args(["--threads", &threads_arg]))?;
         let (a, b) = (ours["median_ms"].as_f64().unwrap_or(f64::NAN), theirs["median_ms"].as_f64().unwrap_or(f64::NAN));
         println!("| {} | {a:.0} | {b:.0} | {:.2} |", theirs["case"].as_str().unwrap_or(name), a / b);

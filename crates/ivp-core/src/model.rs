@@ -27,7 +27,7 @@ use candle_nn::{Init, VarBuilder, VarMap};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
-use crate::ops::{conv2d, sample_bilinear, upsample_bilinear_to, upsample_nearest2x_to};
+use crate::ops::{conv2d, conv2d_relu, sample_bilinear, upsample_bilinear_to, upsample_nearest2x_to};
 
 /// The encoder widths at width multiplier 1 (the paper's).
 pub const ENCODER_WIDTHS: [usize; 5] = [64, 128, 256, 256, 256];
@@ -144,6 +144,12 @@ impl Conv {
         let kernel = self.weight.dim(3)?;
         conv2d(x, &self.weight, Some(&self.bias), self.stride, kernel / 2)
     }
+
+    /// `relu(forward(x))`, fused into the convolution.
+    pub fn forward_relu(&self, x: &Tensor) -> Result<Tensor> {
+        let kernel = self.weight.dim(3)?;
+        conv2d_relu(x, &self.weight, Some(&self.bias), self.stride, kernel / 2)
+    }
 }
 
 /// Normalises the warped depth (0 in holes, in scene units) to (0, 1).
@@ -168,10 +174,10 @@ impl DepthHead {
     /// `depth` (B, 1, H, W) to (B, 1, H, W) in (0, 1).
     pub fn forward(&self, depth: &Tensor) -> Result<Tensor> {
         let (_, _, h, w) = depth.dims4()?;
-        let x = self.c1.forward(depth)?.relu()?;
-        let x = self.c2.forward(&x)?.relu()?;
+        let x = self.c1.forward_relu(depth)?;
+        let x = self.c2.forward_relu(&x)?;
         let (_, _, xh, xw) = x.dims4()?;
-        let x = self.c3.forward(&upsample_bilinear_to(&x, 2 * xh, 2 * xw)?)?.relu()?;
+        let x = self.c3.forward_relu(&upsample_bilinear_to(&x, 2 * xh, 2 * xw)?)?;
         let x = self.c4.forward(&upsample_bilinear_to(&x, h, w)?)?;
         candle_nn::ops::sigmoid(&x)
     }
@@ -256,14 +262,14 @@ impl IvpNet {
     /// multiplied by the mask.
     pub fn raw_output(&self, input: &NetInput<'_>) -> Result<Tensor> {
         let x = self.unet_input(input)?;
-        let x1 = self.e1.forward(&x)?.relu()?;
-        let x2 = self.e2.forward(&x1)?.relu()?;
-        let x3 = self.e3.forward(&x2)?.relu()?;
-        let x4 = self.e4.forward(&x3)?.relu()?;
-        let x5 = self.e5.forward(&x4)?.relu()?;
-        let y = self.d6.forward(&up_and_concat(&x5, &x4)?)?.relu()?;
-        let y = self.d7.forward(&up_and_concat(&y, &x3)?)?.relu()?;
-        let y = self.d8.forward(&up_and_concat(&y, &x2)?)?.relu()?;
+        let x1 = self.e1.forward_relu(&x)?;
+        let x2 = self.e2.forward_relu(&x1)?;
+        let x3 = self.e3.forward_relu(&x2)?;
+        let x4 = self.e4.forward_relu(&x3)?;
+        let x5 = self.e5.forward_relu(&x4)?;
+        let y = self.d6.forward_relu(&up_and_concat(&x5, &x4)?)?;
+        let y = self.d7.forward_relu(&up_and_concat(&y, &x3)?)?;
+        let y = self.d8.forward_relu(&up_and_concat(&y, &x2)?)?;
         let y = self.d9.forward(&up_and_concat(&y, &x1)?)?;
         let y = if self.config.variant.predicts_vectors() { y } else { candle_nn::ops::sigmoid(&y)? };
         y.broadcast_mul(input.mask)

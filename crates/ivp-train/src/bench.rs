@@ -108,7 +108,7 @@ pub fn bench_train(case: &TrainCase) -> Result<BenchReport> {
     let inputs = RandomInputs::new(case.batch, case.crop, case.crop, 0.1, 0)?;
     let weights = LossWeights::default();
     let (times, profile) = timed_runs(2, case.runs, case.profile, || {
-        training_step(&net, &mut optimizer, &inputs.net_input(), &inputs.truth, &weights)?;
+        training_step(&net, &mut optimizer, &inputs.net_input(), &inputs.truth, &weights, 0.0)?;
         Ok(())
     })?;
     Ok(report(format!("train b{} crop{}", case.batch, case.crop), &times, case.width_mult, profile))
@@ -127,13 +127,16 @@ pub fn bench_infer(case: &InferCase) -> Result<BenchReport> {
     Ok(report(case_name, &times, case.width_mult, profile))
 }
 
+/// Milliseconds per run by operator.
+type OperatorTimes = BTreeMap<String, f64>;
+
 /// Runs `f` `warmup` times, then `runs` times under the clock (and the operator profile if asked).
 fn timed_runs(
     warmup: usize,
     runs: usize,
     with_profile: bool,
     mut f: impl FnMut() -> Result<()>,
-) -> Result<(Vec<Duration>, Option<BTreeMap<String, f64>>)> {
+) -> Result<(Vec<Duration>, Option<OperatorTimes>)> {
     for _ in 0..warmup {
         f()?;
     }

@@ -203,7 +203,10 @@ fn write(
     Ok(())
 }
 
-fn read(path: &Path, format: &str) -> Result<(HashMap<String, Tensor>, HashMap<String, String>), CheckpointError> {
+/// Named tensors and the string metadata of a safetensors file.
+type TensorsAndMetadata = (HashMap<String, Tensor>, HashMap<String, String>);
+
+fn read(path: &Path, format: &str) -> Result<TensorsAndMetadata, CheckpointError> {
     let bytes =
         std::fs::read(path).map_err(|e| CheckpointError::Data(ivp_data::DataError::io(path, "cannot read", e)))?;
     let metadata = metadata_of(path, &bytes)?;

@@ -127,7 +127,7 @@ pub fn run_upsample(
             }
             image
         };
-        write_rgb_png(&frames_dir.join(format!("{t:04}.png")), &image)?;
+        write_rgb_png(frames_dir.join(format!("{t:04}.png")), &image)?;
         preview.push(side_by_side(&image, &truth, t % 2 == 1));
         on_frame(t);
     }

@@ -518,15 +518,25 @@ fn run_demo(args: DemoArgs, progress: bool) -> Result<()> {
     let config = TrainConfig { steps: args.steps, ..TrainConfig::demo() };
     let model_path = args.out.join("model.safetensors");
     let resume = latest_checkpoint(&args.out.join("checkpoints"))?.is_some();
-    if resume && model_path.is_file() && ivp_train::checkpoint::load_checkpoint(
-        &latest_checkpoint(&args.out.join("checkpoints"))?.expect("checked above"),
-    )?.step >= config.steps
+    if resume
+        && model_path.is_file()
+        && ivp_train::checkpoint::load_checkpoint(
+            &latest_checkpoint(&args.out.join("checkpoints"))?.expect("checked above"),
+        )?
+        .step
+            >= config.steps
     {
         println!("reusing the model trained in {}", args.out.display());
     } else {
         println!(
             "training a {} network (width {}) on generated scenes: {} steps of {} crops of {}x{} -> {}",
-            config.variant, config.width_mult, config.steps, config.batch, config.crop, config.crop, args.out.display()
+            config.variant,
+            config.width_mult,
+            config.steps,
+            config.batch,
+            config.crop,
+            config.crop,
+            args.out.display()
         );
         let summary = train(&config, &args.out, &RunOptions { resume, progress, ..Default::default() })?;
         println!("trained in {:.1} min", summary.elapsed.as_secs_f64() / 60.0);
@@ -549,8 +559,10 @@ fn run_demo(args: DemoArgs, progress: bool) -> Result<()> {
         }
     };
     let (net, _) = load_model(&model_path)?;
-    let mut methods: Vec<Method> =
-        ["copy", "warp", "fill"].iter().map(|m| Method::Internal(classical_infiller(m).expect("a classical method"))).collect();
+    let mut methods: Vec<Method> = ["copy", "warp", "fill"]
+        .iter()
+        .map(|m| Method::Internal(classical_infiller(m).expect("a classical method")))
+        .collect();
     methods.push(Method::Internal(Box::new(ModelInfiller::new("ivp", net, ivp_core::iterative::DEFAULT_ITERATIONS))));
     println!("evaluating on {}", data.display());
     let report = evaluate(&data, &DEFAULT_TARGETS, &methods, progress)?;

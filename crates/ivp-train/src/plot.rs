@@ -41,7 +41,10 @@ pub fn write_loss_curve(path: &Path, rows: &[MetricsRow]) -> Result<()> {
 }
 
 /// One chart in the band of rows `top..top + PANEL_HEIGHT`; the y range covers every series.
-fn draw_panel(image: &mut RgbImage, top: usize, title: &str, series: &[(&[(f64, f64)], [f32; 3], bool)], max_x: f64) {
+/// A line through points (x, y), its colour, and whether to mark the points.
+type Series<'a> = (&'a [(f64, f64)], [f32; 3], bool);
+
+fn draw_panel(image: &mut RgbImage, top: usize, title: &str, series: &[Series<'_>], max_x: f64) {
     let (x0, x1) = (MARGIN_LEFT, WIDTH - MARGIN);
     let (y0, y1) = (top + MARGIN, top + PANEL_HEIGHT - MARGIN);
     draw_text_in(image, x0, top + 10, title, x1 - x0, BLACK);

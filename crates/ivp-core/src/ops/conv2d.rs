@@ -52,7 +52,14 @@ const WGRAD_ITEMS: usize = 8;
 /// as in PyTorch. Differentiable with respect to all three arguments; the input gradient is skipped
 /// when `x` needs none (it is not a variable and does not depend on one).
 pub fn conv2d(x: &Tensor, w: &Tensor, bias: Option<&Tensor>, stride: usize, padding: usize) -> Result<Tensor> {
-    conv2d_with_tile(x, w, bias, stride, padding, TILE_BYTES)
+    conv2d_with_tile(x, w, bias, stride, padding, false, TILE_BYTES)
+}
+
+/// `relu(conv2d(x, w, bias))` in one op. The ReLU costs no pass of its own in the forward, and in
+/// the backward the output gradient is masked by `output > 0` once (candle's `relu` backward takes
+/// four passes over the activation). The gradient at exactly 0 is 0, as in PyTorch.
+pub fn conv2d_relu(x: &Tensor, w: &Tensor, bias: Option<&Tensor>, stride: usize, padding: usize) -> Result<Tensor> {
+    conv2d_with_tile(x, w, bias, stride, padding, true, TILE_BYTES)
 }
 
 /// [`conv2d`] with a chosen tile size: tests use tiny tiles to exercise the tile seams.
@@ -62,6 +69,7 @@ fn conv2d_with_tile(
     bias: Option<&Tensor>,
     stride: usize,
     padding: usize,
+    relu: bool,
     tile_bytes: usize,
 ) -> Result<Tensor> {
     for t in [Some(x), Some(w), bias].into_iter().flatten() {
@@ -74,7 +82,7 @@ fn conv2d_with_tile(
     if wcin != cin || kh != kw || kh == 0 || stride == 0 || h + 2 * padding < kh || wd + 2 * padding < kw {
         bail!("conv2d: input {:?}, kernel {:?}, stride {stride}, padding {padding}", x.dims(), w.dims());
     }
-    let op = Conv2d { stride, padding, tile_bytes };
+    let op = Conv2d { stride, padding, relu, tile_bytes };
     // The kernels read plain row-major buffers; `contiguous` is free when the tensor already is.
     let (x, w) = (x.contiguous()?, w.contiguous()?);
     match bias {
@@ -535,6 +543,8 @@ fn bias_grad(g: &Geom, grad: &[f32]) -> Vec<f32> {
 struct Conv2d {
     stride: usize,
     padding: usize,
+    /// Apply a ReLU to the output (see [`conv2d_relu`]).
+    relu: bool,
     tile_bytes: usize,
 }
 
@@ -552,13 +562,16 @@ impl Conv2d {
     ) -> Result<(CpuStorage, Shape)> {
         let g = self.geom(x.1, w.1)?;
         let bias = bias.map(|(s, l)| contiguous_values(s, l, "conv2d")).transpose()?;
-        let out = forward(
+        let mut out = forward(
             &g,
             contiguous_values(x.0, x.1, "conv2d")?,
             contiguous_values(w.0, w.1, "conv2d")?,
             bias,
             self.tile_bytes,
         );
+        if self.relu {
+            out.par_chunks_mut(1 << 14).for_each(|c| c.iter_mut().for_each(|v| *v = v.max(0.0)));
+        }
         Ok((CpuStorage::F32(out), Shape::from((g.batch, g.cout, g.ho, g.wo))))
     }
 
@@ -568,9 +581,13 @@ impl Conv2d {
         x: &Tensor,
         w: &Tensor,
         bias: Option<&Tensor>,
+        output: &Tensor,
         grad: &Tensor,
     ) -> Result<(Option<Tensor>, Option<Tensor>, Option<Tensor>)> {
-        let grad = grad.contiguous()?;
+        let grad = match self.relu {
+            true => grad.contiguous()?.apply_op2_no_bwd(&output.contiguous()?, &ReluMask)?,
+            false => grad.contiguous()?,
+        };
         let (_, _, h, wd) = x.dims4()?;
         let (cout, cin, k, _) = w.dims4()?;
         let (stride, padding, tile_bytes) = (self.stride, self.padding, self.tile_bytes);
@@ -607,8 +624,8 @@ impl CustomOp2 for Conv2d {
         profile::timed("conv2d forward", || self.cpu((s1, l1), (s2, l2), None))
     }
 
-    fn bwd(&self, x: &Tensor, w: &Tensor, _res: &Tensor, grad: &Tensor) -> Result<(Option<Tensor>, Option<Tensor>)> {
-        let (dx, dw, _) = self.backward(x, w, None, grad)?;
+    fn bwd(&self, x: &Tensor, w: &Tensor, res: &Tensor, grad: &Tensor) -> Result<(Option<Tensor>, Option<Tensor>)> {
+        let (dx, dw, _) = self.backward(x, w, None, res, grad)?;
         Ok((dx, dw))
     }
 }
@@ -635,10 +652,35 @@ impl CustomOp3 for Conv2d {
         x: &Tensor,
         w: &Tensor,
         bias: &Tensor,
-        _res: &Tensor,
+        res: &Tensor,
         grad: &Tensor,
     ) -> Result<(Option<Tensor>, Option<Tensor>, Option<Tensor>)> {
-        self.backward(x, w, Some(bias), grad)
+        self.backward(x, w, Some(bias), res, grad)
+    }
+}
+
+/// The gradient through a ReLU, on (grad, output): `grad` where `output > 0`, else 0.
+#[derive(Clone, Copy, Debug)]
+struct ReluMask;
+
+impl CustomOp2 for ReluMask {
+    fn name(&self) -> &'static str {
+        "ivp-relu-mask"
+    }
+
+    fn cpu_fwd(&self, s1: &CpuStorage, l1: &Layout, s2: &CpuStorage, l2: &Layout) -> Result<(CpuStorage, Shape)> {
+        if l1.dims() != l2.dims() {
+            bail!("conv2d relu gradient: grad {:?}, output {:?}", l1.dims(), l2.dims());
+        }
+        let (grad, out) = (contiguous_values(s1, l1, "conv2d")?, contiguous_values(s2, l2, "conv2d")?);
+        let mut masked = vec![0f32; grad.len()];
+        const CHUNK: usize = 1 << 14;
+        masked.par_chunks_mut(CHUNK).zip(grad.par_chunks(CHUNK)).zip(out.par_chunks(CHUNK)).for_each(|((m, g), o)| {
+            for ((m, g), o) in m.iter_mut().zip(g).zip(o) {
+                *m = if *o > 0.0 { *g } else { 0.0 };
+            }
+        });
+        Ok((CpuStorage::F32(masked), l1.shape().clone()))
     }
 }
 
@@ -750,7 +792,7 @@ mod tests {
                         let want = candle_conv(&x, &wt, &bias, stride, padding);
                         // Default tiles, and tiles of 16 pixels to exercise the seams.
                         for tile in [TILE_BYTES, 1] {
-                            let got = conv2d_with_tile(&x, &wt, Some(&bias), stride, padding, tile).unwrap();
+                            let got = conv2d_with_tile(&x, &wt, Some(&bias), stride, padding, false, tile).unwrap();
                             let err = rel_err(&got, &want);
                             assert!(err < 1e-4, "k{k} s{stride} p{padding} {:?} tile {tile}: {err}", x.dims());
                         }
@@ -783,9 +825,34 @@ mod tests {
         assert!(rel_err(&conv2d(&x, &w, None, 1, 1).unwrap(), &want) < 1e-4);
     }
 
+    #[test]
+    fn fused_relu_equals_conv_then_relu_forward_and_backward() {
+        for (k, stride, (batch, cin, cout, h, w)) in [(3, 1, (2, 3, 4, 9, 7)), (5, 2, (1, 2, 3, 11, 8)), (7, 1, (2, 1, 2, 6, 5))] {
+            let seed = (k * 100 + stride) as u64;
+            let x = Var::from_tensor(&random(&[batch, cin, h, w], seed)).unwrap();
+            let wt = Var::from_tensor(&random(&[cout, cin, k, k], seed + 1)).unwrap();
+            let b = Var::from_tensor(&random(&[cout], seed + 2)).unwrap();
+            let fused = conv2d_relu(&x, &wt, Some(&b), stride, k / 2).unwrap();
+            let plain = conv2d(&x, &wt, Some(&b), stride, k / 2).unwrap().relu().unwrap();
+            assert_eq!(flat(&fused), flat(&plain));
+            assert!(flat(&fused).iter().any(|v| *v == 0.0) && flat(&fused).iter().any(|v| *v > 0.0));
+            let r = random(fused.dims(), seed + 3);
+            let grads = |y: Tensor| {
+                let g = (y * &r).unwrap().sum_all().unwrap().backward().unwrap();
+                [&x, &wt, &b].map(|v| flat(g.get(v).unwrap()))
+            };
+            let (a, b2) = (grads(fused), grads(plain));
+            for (ga, gb) in a.iter().zip(&b2) {
+                let scale = gb.iter().fold(1f32, |m, v| m.max(v.abs()));
+                let worst = ga.iter().zip(gb).map(|(p, q)| (p - q).abs()).fold(0f32, f32::max);
+                assert!(worst <= 1e-5 * scale, "k {k} stride {stride}: {worst}");
+            }
+        }
+    }
+
     /// Gradients of L = sum(conv2d(x, w, b) * r) by our backward.
     fn our_grads(x: &Var, w: &Var, b: &Var, r: &Tensor, stride: usize, tile: usize) -> [Tensor; 3] {
-        let y = conv2d_with_tile(x, w, Some(b), stride, w.dim(2).unwrap() / 2, tile).unwrap();
+        let y = conv2d_with_tile(x, w, Some(b), stride, w.dim(2).unwrap() / 2, false, tile).unwrap();
         let g = (y * r).unwrap().sum_all().unwrap().backward().unwrap();
         [x, w, b].map(|v| g.get(v).unwrap().clone())
     }
@@ -884,7 +951,7 @@ mod tests {
                 let w = Var::from_tensor(&random(&[cout, cin, 5, 5], 2)).unwrap();
                 let b = Var::from_tensor(&random(&[cout], 3)).unwrap();
                 // Small tiles: many tiles per image, several weight-gradient chunks.
-                let y = conv2d_with_tile(&x, &w, Some(&b), stride, 2, 8192).unwrap();
+                let y = conv2d_with_tile(&x, &w, Some(&b), stride, 2, false, 8192).unwrap();
                 let r = random(y.dims(), 4);
                 let g = (&y * &r).unwrap().sum_all().unwrap().backward().unwrap();
                 let bits = |t: &Tensor| flat(t).iter().map(|v| v.to_bits()).collect();

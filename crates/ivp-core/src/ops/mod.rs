@@ -6,7 +6,7 @@ pub mod profile;
 pub mod resize;
 pub mod sampler;
 
-pub use conv2d::conv2d;
+pub use conv2d::{conv2d, conv2d_relu};
 pub use gaussian::gaussian_blur;
 pub use resize::{upsample_bilinear_to, upsample_nearest2x_to};
 pub use sampler::sample_bilinear;
