@@ -116,7 +116,8 @@ pub fn bench_train(case: &TrainCase) -> Result<BenchReport> {
 
 pub fn bench_infer(case: &InferCase) -> Result<BenchReport> {
     let config = ModelConfig { variant: Variant::Full, width_mult: case.width_mult };
-    let (net, _varmap) = IvpNet::seeded(config, 0)?;
+    // As PyTorch's `no_grad`: no graph is recorded.
+    let net = IvpNet::seeded(config, 0)?.0.detached();
     let (ph, pw) = (case.height.div_ceil(16) * 16, case.width.div_ceil(16) * 16);
     let inputs = RandomInputs::new(1, ph, pw, 0.05, 0)?;
     let (times, profile) = timed_runs(1, case.runs, case.profile, || {

@@ -100,7 +100,8 @@ pub fn export_model(checkpoint: &Path, out: &Path) -> Result<ModelConfig, Checkp
     Ok(config)
 }
 
-/// Reads a model file (or the parameters of a checkpoint) and builds the network.
+/// Reads a model file (or the parameters of a checkpoint) and builds the network for inference
+/// (on plain tensors: see [`IvpNet::detached`]).
 pub fn load_model(path: &Path) -> Result<(IvpNet, ModelConfig), CheckpointError> {
     let (net, config, _) = read_model(path)?;
     Ok((net, config))
@@ -117,7 +118,7 @@ fn read_model(path: &Path) -> Result<(IvpNet, ModelConfig, HashMap<String, Tenso
     let config = model_config_from(path, &metadata)?;
     let mut tensors = tensors_of(path, &bytes)?;
     tensors.retain(|name, _| !name.starts_with("adam."));
-    let net = network_from(path, &tensors, config)?;
+    let net = network_from(path, &tensors, config)?.detached();
     Ok((net, config, tensors))
 }
 

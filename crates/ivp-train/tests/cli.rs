@@ -208,3 +208,74 @@ fn show_sample_draws_a_sheet_deterministically() {
     ok(&["show-sample", "--seed", "1", "--crop", "32", "--out", s(&synthetic)]);
     assert!(synthetic.is_file());
 }
+
+/// A tiny training run through the command line, then every command that reads its model.
+#[test]
+fn train_export_eval_infer_and_upsample_from_the_command_line() {
+    let dir = tempfile::tempdir().unwrap();
+    let run = dir.path().join("run");
+    let config = dir.path().join("tiny.toml");
+    std::fs::write(
+        &config,
+        "width_mult = 0.125\nsteps = 3\nbatch = 2\ncrop = 32\nvalidation_samples = 2\nlog_every = 1\n",
+    )
+    .unwrap();
+    let stdout = ok(&["train", "--synthetic", "--config", s(&config), "--steps", "2", "--out", s(&run)]);
+    assert!(stdout.contains("model written to"), "{stdout}");
+    let written = std::fs::read_to_string(run.join("config.toml")).unwrap();
+    assert!(written.contains("steps = 2") && written.contains("crop = 32"), "flags override the file: {written}");
+    let model = run.join("model.safetensors");
+
+    let exported = dir.path().join("exported.safetensors");
+    let ckpt = run.join("checkpoints/step_00000002.safetensors");
+    ok(&["export", "--checkpoint", s(&ckpt), "--out", s(&exported)]);
+    assert_eq!(std::fs::read(&exported).unwrap().len(), std::fs::read(&model).unwrap().len());
+
+    let clip = blender_dev().join("clip_000");
+    let table = ok(&[
+        "eval",
+        "--data",
+        s(&clip),
+        "--methods",
+        "fill,ivp",
+        "--model",
+        s(&model),
+        "--model",
+        &format!("again={}", s(&exported)),
+        "--targets",
+        "6",
+    ]);
+    for name in ["| fill", "| ivp", "| again"] {
+        assert!(table.contains(name), "{table}");
+    }
+    // The same weights score the same.
+    let row = |name: &str| table.lines().find(|l| l.starts_with(name)).unwrap().split('|').nth(3).unwrap().to_string();
+    assert_eq!(row("| ivp "), row("| again "));
+
+    let infer = dir.path().join("infer");
+    let stdout = ok(&["infer", "--clip", s(&clip), "--model", s(&model), "--target", "6", "--out", s(&infer)]);
+    assert!(stdout.contains("mean absolute error"), "{stdout}");
+    for file in ["infilled.png", "holes.png", "vectors.png", "error.png"] {
+        let image = read_rgb(infer.join(file)).unwrap();
+        assert_eq!((image.width(), image.height()), (320, 240), "{file}");
+    }
+
+    let up = dir.path().join("up");
+    let stdout = ok(&["upsample", "--clip", s(&clip), "--model", s(&model), "--out", s(&up)]);
+    assert!(stdout.contains("12 frames (6 predicted"), "{stdout}");
+    let clip_frames = Clip::open(&clip).unwrap();
+    for t in 0..12 {
+        let frame = read_rgb(up.join(format!("frames/{t:04}.png"))).unwrap();
+        if t % 2 == 0 {
+            // Rendered frames pass through unchanged.
+            assert_eq!(frame.pixels(), clip_frames.load_frame(t).unwrap().image.quantized_to_8bit().pixels());
+        }
+    }
+    let gif = std::fs::read(up.join("preview.gif")).unwrap();
+    assert!(gif.starts_with(b"GIF89a"));
+
+    // Bad model files are refused with their name.
+    let out = ivp(&["infer", "--clip", s(&clip), "--model", s(&config), "--target", "6", "--out", s(&infer)]);
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains(s(&config)));
+}
