@@ -265,7 +265,12 @@ impl IvpNet {
         let conv = |c: &Conv| Conv { weight: c.weight.detach(), bias: c.bias.detach(), stride: c.stride };
         Self {
             config: self.config,
-            depth: self.depth.as_ref().map(|d| DepthHead { c1: conv(&d.c1), c2: conv(&d.c2), c3: conv(&d.c3), c4: conv(&d.c4) }),
+            depth: self.depth.as_ref().map(|d| DepthHead {
+                c1: conv(&d.c1),
+                c2: conv(&d.c2),
+                c3: conv(&d.c3),
+                c4: conv(&d.c4),
+            }),
             e1: conv(&self.e1),
             e2: conv(&self.e2),
             e3: conv(&self.e3),

@@ -71,8 +71,8 @@ struct DemoArgs {
     /// The run folder (run again to reuse the trained model and print the table again).
     #[arg(long, default_value = "runs/demo")]
     out: PathBuf,
-    /// Training steps (about 0.25 s each on 2 cores).
-    #[arg(long, default_value_t = 800)]
+    /// Training steps (about 0.2 s each on 2 cores).
+    #[arg(long, default_value_t = 1000)]
     steps: u64,
     /// Clips to evaluate on; by default ../shared/data/blender-dev when it exists, otherwise
     /// generated clips the network never saw.

@@ -95,7 +95,7 @@ impl Default for TrainConfig {
 impl TrainConfig {
     /// The few-minute run of `ivp demo`: the default recipe, shorter.
     pub fn demo() -> Self {
-        Self { steps: 800, validate_every: 200, checkpoint_every: 200, ..Self::default() }
+        Self { steps: 1000, guide_steps: 300, validate_every: 250, ..Self::default() }
     }
 
     /// Reads a TOML file of [`TrainConfig`] fields (any subset; the rest keep their defaults).
@@ -265,6 +265,7 @@ pub fn train(config: &TrainConfig, run_dir: &Path, options: &RunOptions) -> Resu
     let checkpoint = |step: u64, optimizer: &Adam| -> Result<()> {
         let path = checkpoints.join(format!("step_{step:08}.safetensors"));
         save_checkpoint(&path, &varmap, &model_config, optimizer, step, &config_json)?;
+        tracing::info!(step, path = %path.display(), "checkpoint");
         prune_checkpoints(&checkpoints, config.keep_checkpoints)
     };
     while step < config.steps {
@@ -284,6 +285,7 @@ pub fn train(config: &TrainConfig, run_dir: &Path, options: &RunOptions) -> Resu
         if step % config.log_every == 0 || validate_now {
             let scores = validate_now.then(|| validation.score_network(&net, config.iterations)).transpose()?;
             if let Some(s) = &scores {
+                tracing::info!(step, d_mse = s.d_mse, d_ssim = s.d_ssim, "validation");
                 bar.println(format!(
                     "step {step}: validation D-MSE {:.1} D-SSIM {:.4} (fill {:.1} / {:.4})",
                     s.d_mse, s.d_ssim, fill.d_mse, fill.d_ssim
@@ -597,7 +599,8 @@ mod tests {
 
     #[test]
     fn learning_rate_warms_up_then_decays_to_its_floor() {
-        let c = TrainConfig { steps: 1000, warmup_steps: 100, lr: 1e-3, final_lr_fraction: 0.1, ..TrainConfig::default() };
+        let c =
+            TrainConfig { steps: 1000, warmup_steps: 100, lr: 1e-3, final_lr_fraction: 0.1, ..TrainConfig::default() };
         assert!((c.lr_at(0) - 1e-5).abs() < 1e-12);
         assert!((c.lr_at(99) - 1e-3).abs() < 1e-12);
         assert!((c.lr_at(100) - 1e-3).abs() < 1e-12);
@@ -611,7 +614,10 @@ mod tests {
         let text = toml::to_string(&TrainConfig::default()).unwrap();
         assert_eq!(toml::from_str::<TrainConfig>(&text).unwrap(), TrainConfig::default());
         let partial: TrainConfig = toml::from_str("steps = 10\nvariant = \"no-tg\"").unwrap();
-        assert_eq!((partial.steps, partial.variant.as_str(), partial.batch), (10, "no-tg", TrainConfig::default().batch));
+        assert_eq!(
+            (partial.steps, partial.variant.as_str(), partial.batch),
+            (10, "no-tg", TrainConfig::default().batch)
+        );
         assert!(toml::from_str::<TrainConfig>("stpes = 10").is_err(), "a misspelt field is an error");
         assert!(TrainConfig { variant: "big".into(), ..TrainConfig::default() }.validate().is_err());
     }

@@ -827,7 +827,9 @@ mod tests {
 
     #[test]
     fn fused_relu_equals_conv_then_relu_forward_and_backward() {
-        for (k, stride, (batch, cin, cout, h, w)) in [(3, 1, (2, 3, 4, 9, 7)), (5, 2, (1, 2, 3, 11, 8)), (7, 1, (2, 1, 2, 6, 5))] {
+        for (k, stride, (batch, cin, cout, h, w)) in
+            [(3, 1, (2, 3, 4, 9, 7)), (5, 2, (1, 2, 3, 11, 8)), (7, 1, (2, 1, 2, 6, 5))]
+        {
             let seed = (k * 100 + stride) as u64;
             let x = Var::from_tensor(&random(&[batch, cin, h, w], seed)).unwrap();
             let wt = Var::from_tensor(&random(&[cout, cin, k, k], seed + 1)).unwrap();
@@ -835,7 +837,7 @@ mod tests {
             let fused = conv2d_relu(&x, &wt, Some(&b), stride, k / 2).unwrap();
             let plain = conv2d(&x, &wt, Some(&b), stride, k / 2).unwrap().relu().unwrap();
             assert_eq!(flat(&fused), flat(&plain));
-            assert!(flat(&fused).iter().any(|v| *v == 0.0) && flat(&fused).iter().any(|v| *v > 0.0));
+            assert!(flat(&fused).contains(&0.0) && flat(&fused).iter().any(|v| *v > 0.0));
             let r = random(fused.dims(), seed + 3);
             let grads = |y: Tensor| {
                 let g = (y * &r).unwrap().sum_all().unwrap().backward().unwrap();
