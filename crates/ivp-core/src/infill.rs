@@ -343,37 +343,7 @@ fn copy_along_vectors(image: &mut RgbImage, source: &RgbImage, vectors: &VectorF
 /// A corner whose bilinear weight is zero (the read sits exactly on a row or column) is not a
 /// corner of the read. `None` when no corner remains, or `(x, y)` is not finite.
 pub fn sample_known_bilinear(image: &RgbImage, known: &[bool], x: f32, y: f32) -> Option<[f32; 3]> {
-    assert_eq!(known.len(), image.len(), "known mask does not match the image");
-    if !(x.is_finite() && y.is_finite()) {
-        return None;
-    }
-    let (x0, y0) = (x.floor(), y.floor());
-    let (ax, ay) = (x - x0, y - y0);
-    let corners = [
-        (0.0, 0.0, (1.0 - ax) * (1.0 - ay)),
-        (1.0, 0.0, ax * (1.0 - ay)),
-        (0.0, 1.0, (1.0 - ax) * ay),
-        (1.0, 1.0, ax * ay),
-    ];
-    let (w, h) = (image.width() as f32, image.height() as f32);
-    let mut sum = [0f32; 3];
-    let mut total_weight = 0f32;
-    for (dx, dy, weight) in corners {
-        let (cx, cy) = (x0 + dx, y0 + dy);
-        // Range checks on floats first: the casts below must never see a huge value.
-        if weight <= 0.0 || !(cx >= 0.0 && cx < w && cy >= 0.0 && cy < h) {
-            continue;
-        }
-        let i = image.index(cx as usize, cy as usize);
-        if !known[i] {
-            continue;
-        }
-        total_weight += weight;
-        for (s, c) in sum.iter_mut().zip(image.pixels()[i]) {
-            *s += weight * c;
-        }
-    }
-    (total_weight > 0.0).then(|| sum.map(|s| s / total_weight))
+    crate::iterative::sample_known(image, known, x, y)
 }
 
 // ---------------------------------------------------------------------------------------------

@@ -701,22 +701,8 @@ fn run_show_sample(args: ShowSampleArgs) -> Result<()> {
     let sample = generator.sample(args.step, args.index)?;
 
     let size = sample.size();
-    // 255 on disocclusions, 128 on new regions (holes of the warp that are not disocclusions).
-    let holes: Vec<u8> = sample
-        .mask
-        .as_flat()
-        .iter()
-        .zip(sample.warped_depth.as_flat())
-        .map(|(&m, &z)| {
-            if m > 0.5 {
-                255
-            } else if z > 0.0 {
-                0
-            } else {
-                128
-            }
-        })
-        .collect();
+    // 255 on disocclusions, 128 on new regions, 0 on known pixels.
+    let holes = ivp_train::validation::hole_mask(&sample).to_gray8();
     let o = &sample.origin;
     let (n2, n, t) = (o.frames.before_last, o.frames.last, o.frames.target);
     let mut sheet = Sheet::new(4);
