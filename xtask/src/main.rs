@@ -1,5 +1,6 @@
 //! Project chores: `cargo xtask bench` (criterion benchmarks, and with `--torch` ivp's training
-//! step and inference against shared/bench/torch_reference.py in the same run).
+//! step and inference against shared/bench/torch_reference.py in the same run), and
+//! `cargo xtask ablate` (train every model variant with one recipe and score them side by side).
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -16,6 +17,23 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Task {
+    /// Train each model variant with the default recipe (same seed, same data) and evaluate them
+    /// beside copy, warp and fill. Runs already trained in OUT are reused, stopped ones resumed.
+    Ablate {
+        /// Comma-separated variants (full, no-tg, no-depth, intensity).
+        #[arg(long, value_delimiter = ',', default_value = "full,no-tg,no-depth,intensity")]
+        variants: Vec<String>,
+        /// Training steps per variant (the default recipe's when not given: about 22 minutes each
+        /// on 2 cores).
+        #[arg(long)]
+        steps: Option<u64>,
+        /// Clips to evaluate on.
+        #[arg(long, default_value = "../shared/data/blender-dev")]
+        data: PathBuf,
+        /// Run folders go to OUT/<variant>; the scores to OUT/scores.json.
+        #[arg(long, default_value = "runs/ablate")]
+        out: PathBuf,
+    },
     /// Run the criterion benchmarks (warping a 1920x1080 frame, convolutions, training samples).
     Bench {
         /// Only benchmarks whose name contains this.
@@ -36,6 +54,7 @@ enum Task {
 
 fn main() -> Result<()> {
     match Cli::parse().command {
+        Task::Ablate { variants, steps, data, out } => ablate(&variants, steps, &data, &out),
         Task::Bench { torch: true, threads, runs, .. } => bench_against_torch(threads, runs),
         Task::Bench { filter, .. } => bench(filter.as_deref()),
     }
@@ -73,16 +92,7 @@ fn json_line(cmd: &mut Command) -> Result<serde_json::Value> {
 
 fn bench_against_torch(threads: usize, runs: usize) -> Result<()> {
     let root = root();
-    let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
-    let status = Command::new(&cargo)
-        .current_dir(&root)
-        .args(["build", "--release", "-p", "ivp-train"])
-        .status()
-        .context("building ivp")?;
-    if !status.success() {
-        bail!("cargo build failed");
-    }
-    let ivp = root.join("target/release/ivp");
+    let ivp = build_ivp(&root)?;
     let reference = root.join("../shared/bench/torch_reference.py");
     if !reference.is_file() {
         bail!("{} is missing", reference.display());
@@ -103,4 +113,59 @@ fn bench_against_torch(threads: usize, runs: usize) -> Result<()> {
         eprintln!("{name}: torch {theirs}");
     }
     Ok(())
+}
+
+/// Builds the `ivp` binary in release and returns its path.
+fn build_ivp(root: &Path) -> Result<PathBuf> {
+    let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
+    let status = Command::new(&cargo)
+        .current_dir(root)
+        .args(["build", "--release", "-p", "ivp-train"])
+        .status()
+        .context("building ivp")?;
+    if !status.success() {
+        bail!("cargo build failed");
+    }
+    Ok(root.join("target/release/ivp"))
+}
+
+fn run(cmd: &mut Command) -> Result<()> {
+    let status = cmd.status().with_context(|| format!("running {cmd:?}"))?;
+    if !status.success() {
+        bail!("{cmd:?} failed: {status}");
+    }
+    Ok(())
+}
+
+fn ablate(variants: &[String], steps: Option<u64>, data: &Path, out: &Path) -> Result<()> {
+    let root = root();
+    let ivp = build_ivp(&root)?;
+    // Paths on the command line are relative to where the user stands, not to the workspace.
+    let mut models = Vec::new();
+    for variant in variants {
+        let dir = out.join(variant);
+        let model = dir.join("model.safetensors");
+        if model.is_file() {
+            println!("{variant}: reusing {}", model.display());
+        } else {
+            let mut cmd = Command::new(&ivp);
+            cmd.args(["train", "--synthetic", "--variant", variant, "--out"]).arg(&dir);
+            if let Some(n) = steps {
+                cmd.args(["--steps", &n.to_string()]);
+            }
+            if dir.join("checkpoints").is_dir() {
+                cmd.arg("--resume");
+            }
+            println!("{variant}: training in {}", dir.display());
+            run(&mut cmd)?;
+        }
+        models.push(format!("{variant}={}", model.display()));
+    }
+    let mut cmd = Command::new(&ivp);
+    cmd.args(["eval", "--data"]).arg(data).args(["--methods", "copy,warp,fill"]);
+    for m in &models {
+        cmd.args(["--model", m]);
+    }
+    cmd.arg("--json").arg(out.join("scores.json"));
+    run(&mut cmd)
 }
