@@ -258,4 +258,40 @@ mod tests {
             }
         }
     }
+
+    #[test]
+    fn extreme_depths_and_all_hole_frames_give_finite_images() {
+        let (net, _) = IvpNet::seeded(ModelConfig { variant: Variant::Full, width_mult: 0.125 }, 2).unwrap();
+        let (w, h) = (19, 13);
+        let prior = VectorField::zeros(w, h);
+        for (label, depth_value, hole_every) in [
+            ("huge depth", 1e30f32, 3),
+            ("infinite depth", f32::INFINITY, 3),
+            ("NaN depth", f32::NAN, 3),
+            ("all holes", 5.0, 1),
+        ] {
+            let classes: Vec<PixelClass> = (0..w * h)
+                .map(|i| if i % hole_every == 0 { PixelClass::Disocclusion } else { PixelClass::Known })
+                .collect();
+            let holes = HoleMask::from_classes(w, h, classes);
+            let known = holes.known();
+            let warped = RgbImage::from_pixels(
+                w,
+                h,
+                known.iter().map(|&k| if k { [0.3, 0.6, 0.9] } else { [0.0; 3] }).collect(),
+            );
+            let depth =
+                DepthMap::from_pixels(w, h, known.iter().map(|&k| [if k { depth_value } else { 0.0 }]).collect());
+            let inputs = FrameInputs {
+                warped: &warped,
+                warped_depth: &depth,
+                holes: &holes,
+                prior: &prior,
+                last: None,
+                last_warped: None,
+            };
+            let image = infill_frame(&net, &inputs, 3).unwrap();
+            assert!(image.pixels().iter().flatten().all(|c| c.is_finite()), "{label}");
+        }
+    }
 }
