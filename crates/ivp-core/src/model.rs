@@ -27,7 +27,7 @@ use candle_nn::{Init, VarBuilder, VarMap};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
-use crate::ops::{conv2d, conv2d_relu, sample_bilinear, upsample_bilinear_to, upsample_nearest2x_to};
+use crate::ops::{conv2d, conv2d_relu, sample_bilinear, upsample_bilinear_to, upsample_concat};
 
 /// The encoder widths at width multiplier 1 (the paper's).
 pub const ENCODER_WIDTHS: [usize; 5] = [64, 128, 256, 256, 256];
@@ -340,8 +340,7 @@ impl IvpNet {
 
 /// Decoder step input: `x` upsampled (nearest x2, cropped to the skip's size), then the skip.
 fn up_and_concat(x: &Tensor, skip: &Tensor) -> Result<Tensor> {
-    let (_, _, h, w) = skip.dims4()?;
-    Tensor::cat(&[&upsample_nearest2x_to(x, h, w)?, skip], 1)
+    upsample_concat(x, skip)
 }
 
 /// Redraws every parameter of `varmap` uniformly in +-1/sqrt(fan_in) (PyTorch's default for

@@ -8,7 +8,7 @@ pub mod sampler;
 
 pub use conv2d::{conv2d, conv2d_relu};
 pub use gaussian::gaussian_blur;
-pub use resize::{upsample_bilinear_to, upsample_nearest2x_to};
+pub use resize::{upsample_bilinear_to, upsample_concat, upsample_nearest2x_to};
 pub use sampler::sample_bilinear;
 
 use candle_core::{bail, CpuStorage, Layout, Result};
