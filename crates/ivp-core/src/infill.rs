@@ -4,14 +4,16 @@
 //! ([`fill_new_regions`]) so that whole-frame metrics compare like with like (SPEC §4.1).
 //!
 //! Classical methods: `copy` (the last rendered frame), `warp` (the warped frame, disocclusions
-//! black), `fill` (each disocclusion copies its background neighbour) and `oracle` (fictitious
-//! vectors measured on the ground truth, an upper bound for vector prediction).
+//! black), `fill` (each disocclusion copies its background neighbour), `oracle` (fictitious
+//! vectors measured on the ground truth, an upper bound for vector prediction) and `telea`
+//! (OpenCV's Telea inpainting of the disocclusions, radius 5, in `inpaint.rs`).
 
 use std::time::{Duration, Instant};
 
 use rayon::prelude::*;
 
 use crate::image::is_valid_depth;
+use crate::inpaint::Telea;
 use crate::prior::estimate_fictitious_vectors_on;
 use crate::{DepthMap, HoleMask, Intrinsics, PixelClass, RgbImage, VectorField, Warp, WorldToCamera};
 
@@ -351,7 +353,7 @@ pub fn sample_known_bilinear(image: &RgbImage, known: &[bool], x: f32, y: f32) -
 // ---------------------------------------------------------------------------------------------
 
 /// The names of the classical methods, as on the command line.
-pub const CLASSICAL_METHODS: &[&str] = &["copy", "warp", "fill", "oracle"];
+pub const CLASSICAL_METHODS: &[&str] = &["copy", "warp", "fill", "oracle", "telea"];
 
 /// The classical method called `name`, or `None` for any other name.
 pub fn classical_infiller(name: &str) -> Option<Box<dyn Infiller>> {
@@ -360,6 +362,7 @@ pub fn classical_infiller(name: &str) -> Option<Box<dyn Infiller>> {
         "warp" => Some(Box::new(WarpOnly)),
         "fill" => Some(Box::new(BackgroundFill)),
         "oracle" => Some(Box::new(Oracle)),
+        "telea" => Some(Box::new(Telea::default())),
         _ => None,
     }
 }
@@ -371,7 +374,7 @@ fn timed<T>(f: impl FnOnce() -> T) -> (T, Duration) {
     (out, start.elapsed())
 }
 
-fn infilled_in_one_stage(image: RgbImage, elapsed: Duration) -> Infilled {
+pub(crate) fn infilled_in_one_stage(image: RgbImage, elapsed: Duration) -> Infilled {
     Infilled { image, stages: vec![("infill", elapsed)] }
 }
 
@@ -775,8 +778,17 @@ mod tests {
         let stage_names: Vec<&str> = oracle.stages.iter().map(|(name, _)| *name).collect();
         assert_eq!(stage_names, ["prior", "infill"]);
 
+        // Telea inpainting fills the disocclusions and leaves known pixels as they are.
+        let telea = run("telea", &ctx);
+        for (i, class) in scene.warped.holes.classes().iter().enumerate() {
+            if *class == PixelClass::Known {
+                assert_eq!(telea.image.pixels()[i], scene.warped.image.pixels()[i]);
+            }
+        }
+        assert!(holes.iter().all(|&(u, v)| telea.image.get(u, v) != [0.0; 3]));
+
         // New regions (right border) are filled the same way by every method that warps.
-        for out in [&warp, &fill, &oracle] {
+        for out in [&warp, &fill, &oracle, &telea] {
             for (i, class) in scene.warped.holes.classes().iter().enumerate() {
                 if *class == PixelClass::NewRegion {
                     assert_eq!(out.image.pixels()[i], fill.image.pixels()[i]);

@@ -7,6 +7,7 @@ pub mod holes;
 pub mod image;
 pub mod inference;
 pub mod infill;
+pub mod inpaint;
 pub mod iterative;
 pub mod loss;
 pub mod metrics;

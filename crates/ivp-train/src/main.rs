@@ -231,8 +231,9 @@ struct EvalArgs {
     #[arg(long)]
     data: PathBuf,
     /// Comma-separated methods: copy (the last frame as it is), warp (disocclusions black),
-    /// fill (background of the 4 nearest known pixels), oracle (uses the ground truth), and the
-    /// names given with --model (added when not listed).
+    /// fill (background of the 4 nearest known pixels), oracle (uses the ground truth), telea
+    /// (OpenCV's Telea inpainting, radius 5), and the names given with --model (added when not
+    /// listed).
     #[arg(long, value_delimiter = ',', default_value = "copy,warp,fill")]
     methods: Vec<String>,
     /// Frames to predict in each clip (each target t is predicted from frames t-3 and t-1).
