@@ -52,7 +52,7 @@ fn exported_weights_give_the_same_vectors_in_pytorch() {
         let config = ModelConfig { variant, width_mult };
         let (_, varmap) = IvpNet::seeded(config, 11).unwrap();
         let model = dir.path().join(format!("{variant}-{width_mult}.safetensors"));
-        save_model(&model, &varmap, &config).unwrap();
+        save_model(&model, &varmap, &config, None).unwrap();
         // What ivp computes from the file it wrote, as a user would load it.
         let (net, loaded) = load_model(&model).unwrap();
         assert_eq!(loaded, config);

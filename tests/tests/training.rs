@@ -39,6 +39,13 @@ fn parameters(path: &Path) -> Vec<(String, Vec<f32>)> {
     tensors.into_iter().map(|(n, t)| (n, t.flatten_all().unwrap().to_vec1().unwrap())).collect()
 }
 
+/// The `ivp.step` of a model file's metadata.
+fn model_step(path: &Path) -> u64 {
+    let bytes = std::fs::read(path).unwrap();
+    let (_, meta) = safetensors::SafeTensors::read_metadata(&bytes).unwrap();
+    meta.metadata().as_ref().unwrap()["ivp.step"].parse().unwrap()
+}
+
 #[test]
 fn a_resumed_run_equals_an_uninterrupted_one() {
     let dir = tempfile::tempdir().unwrap();
@@ -70,6 +77,9 @@ fn a_resumed_run_equals_an_uninterrupted_one() {
     assert_eq!(steps, [2, 4, 6]);
     assert_eq!(csv.lines().skip(1).map(|l| l.split(',').nth(5).unwrap()).collect::<Vec<_>>().len(), 3);
     assert!(parts.join("loss.png").is_file());
+
+    // The model file records the step its weights are from.
+    assert_eq!(model_step(&parts.join("model.safetensors")), 6);
 }
 
 #[test]

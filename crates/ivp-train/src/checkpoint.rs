@@ -44,11 +44,17 @@ pub struct Checkpoint {
     pub adam_steps: u64,
 }
 
-/// Writes the network's parameters and configuration as a model file.
-pub fn save_model(path: &Path, varmap: &VarMap, config: &ModelConfig) -> Result<(), CheckpointError> {
+/// Writes the network's parameters and configuration as a model file; `step`, the training step
+/// the weights are from, goes to the metadata (`ivp.step`) when known.
+pub fn save_model(
+    path: &Path,
+    varmap: &VarMap,
+    config: &ModelConfig,
+    step: Option<u64>,
+) -> Result<(), CheckpointError> {
     let tensors: Vec<(String, Tensor)> =
         named_parameters(varmap).into_iter().map(|(name, var)| (name, var.as_tensor().clone())).collect();
-    write(path, tensors, model_metadata(config, MODEL_FORMAT))
+    write(path, tensors, model_file_metadata(config, step))
 }
 
 /// Writes a checkpoint of `step`: parameters, Adam's state and the training configuration.
@@ -93,21 +99,24 @@ pub fn load_checkpoint(path: &Path) -> Result<Checkpoint, CheckpointError> {
 /// Writes the model file of a checkpoint (or copies a model file), after checking that its
 /// parameters build the network its metadata describes.
 pub fn export_model(checkpoint: &Path, out: &Path) -> Result<ModelConfig, CheckpointError> {
-    let (_, config, mut tensors) = read_model(checkpoint)?;
+    let (_, config, mut tensors, step) = read_model(checkpoint)?;
     let mut tensors: Vec<(String, Tensor)> = tensors.drain().collect();
     tensors.sort_by(|a, b| a.0.cmp(&b.0));
-    write(out, tensors, model_metadata(&config, MODEL_FORMAT))?;
+    write(out, tensors, model_file_metadata(&config, step))?;
     Ok(config)
 }
 
 /// Reads a model file (or the parameters of a checkpoint) and builds the network for inference
 /// (on plain tensors: see [`IvpNet::detached`]).
 pub fn load_model(path: &Path) -> Result<(IvpNet, ModelConfig), CheckpointError> {
-    let (net, config, _) = read_model(path)?;
+    let (net, config, _, _) = read_model(path)?;
     Ok((net, config))
 }
 
-fn read_model(path: &Path) -> Result<(IvpNet, ModelConfig, HashMap<String, Tensor>), CheckpointError> {
+/// A network, its configuration, its parameters and the training step they are from (if recorded).
+type ModelParts = (IvpNet, ModelConfig, HashMap<String, Tensor>, Option<u64>);
+
+fn read_model(path: &Path) -> Result<ModelParts, CheckpointError> {
     let bytes = std::fs::read(path)
         .map_err(|e| CheckpointError::Data(ivp_data::DataError::io(path, "cannot read model file", e)))?;
     let metadata = metadata_of(path, &bytes)?;
@@ -119,7 +128,8 @@ fn read_model(path: &Path) -> Result<(IvpNet, ModelConfig, HashMap<String, Tenso
     let mut tensors = tensors_of(path, &bytes)?;
     tensors.retain(|name, _| !name.starts_with("adam."));
     let net = network_from(path, &tensors, config)?.detached();
-    Ok((net, config, tensors))
+    let step = metadata.get("ivp.step").and_then(|s| s.parse().ok());
+    Ok((net, config, tensors, step))
 }
 
 /// Builds a network of `config` from named parameters, checking that every parameter is present
@@ -171,6 +181,15 @@ pub fn restore_parameters(
 /// A network's variables and a builder over them: the trainer's view of a model.
 pub fn varbuilder(varmap: &VarMap) -> VarBuilder<'static> {
     VarBuilder::from_varmap(varmap, candle_core::DType::F32, &Device::Cpu)
+}
+
+/// The metadata of a model file: the configuration, and the training step when known.
+fn model_file_metadata(config: &ModelConfig, step: Option<u64>) -> HashMap<String, String> {
+    let mut metadata = model_metadata(config, MODEL_FORMAT);
+    if let Some(step) = step {
+        metadata.insert("ivp.step".into(), step.to_string());
+    }
+    metadata
 }
 
 fn model_metadata(config: &ModelConfig, format: &str) -> HashMap<String, String> {

@@ -94,16 +94,22 @@ struct TrainArgs {
     /// full, intensity, no-tg (zeros for the temporal prior) or no-depth (no depth head).
     #[arg(long)]
     variant: Option<String>,
+    /// Width multiplier of the U-Net: 1 = the paper's widths (64 ... 256); recipe: 0.25.
     #[arg(long)]
     width_mult: Option<f64>,
+    /// Training steps (recipe: 5000, about 20 minutes on 2 cores).
     #[arg(long)]
     steps: Option<u64>,
+    /// Crops per step (recipe: 16).
     #[arg(long)]
     batch: Option<usize>,
+    /// Side of the square training crops, centred on a disocclusion (recipe: 64).
     #[arg(long)]
     crop: Option<usize>,
+    /// Peak learning rate of Adam, after a warm-up and before a cosine decay (recipe: 1e-3).
     #[arg(long)]
     lr: Option<f64>,
+    /// Seed of the data and of the initial weights: the same seed gives the same run (recipe: 0).
     #[arg(long)]
     seed: Option<u64>,
     /// Steps between checkpoints.
@@ -157,8 +163,10 @@ struct UpsampleArgs {
     /// The clip folder; its even frames are taken as rendered.
     #[arg(long)]
     clip: PathBuf,
+    /// A model file (ivp train writes RUN_DIR/model.safetensors).
     #[arg(long)]
     model: PathBuf,
+    /// Iterations of the test-time infilling (SPEC §6.5).
     #[arg(long, default_value_t = ivp_core::iterative::DEFAULT_ITERATIONS)]
     iterations: usize,
     /// Output folder: frames/NNNN.png and preview.gif.
@@ -170,12 +178,16 @@ struct UpsampleArgs {
 enum BenchCommand {
     /// Forward, sampler, losses, backward and Adam on one batch.
     Train {
+        /// Crops in the batch.
         #[arg(long, default_value_t = 4)]
         batch: usize,
+        /// Side of the square crops.
         #[arg(long, default_value_t = 256)]
         crop: usize,
+        /// Timed runs (after untimed warm-up runs, as the reference does).
         #[arg(long, default_value_t = 5)]
         runs: usize,
+        /// Width multiplier of the U-Net (1 = the paper's widths).
         #[arg(long, default_value_t = 1.0)]
         width_mult: f64,
         /// Add the milliseconds per run spent in each operator.
@@ -184,12 +196,16 @@ enum BenchCommand {
     },
     /// One dense forward pass and sampling of a frame (padded to a multiple of 16).
     Infer {
+        /// Frame height in pixels.
         #[arg(long, default_value_t = 1080)]
         height: usize,
+        /// Frame width in pixels.
         #[arg(long, default_value_t = 1920)]
         width: usize,
+        /// Timed runs (after untimed warm-up runs, as the reference does).
         #[arg(long, default_value_t = 3)]
         runs: usize,
+        /// Width multiplier of the U-Net (1 = the paper's widths).
         #[arg(long, default_value_t = 1.0)]
         width_mult: f64,
         /// Add the milliseconds per run spent in each operator.

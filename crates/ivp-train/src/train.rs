@@ -73,7 +73,7 @@ impl Default for TrainConfig {
             data: None,
             variant: Variant::Full.as_str().to_string(),
             width_mult: 0.25,
-            steps: 6000,
+            steps: 5000,
             batch: 16,
             crop: 64,
             guide_steps: 500,
@@ -82,8 +82,8 @@ impl Default for TrainConfig {
             final_lr_fraction: 0.1,
             seed: 0,
             log_every: 25,
-            validate_every: 500,
-            validation_samples: 48,
+            validate_every: 250,
+            validation_samples: 192,
             iterations: ivp_core::iterative::DEFAULT_ITERATIONS,
             checkpoint_every: 250,
             keep_checkpoints: 3,
@@ -313,7 +313,7 @@ pub fn train(config: &TrainConfig, run_dir: &Path, options: &RunOptions) -> Resu
     crate::plot::write_loss_curve(&run_dir.join("loss.png"), log.rows())?;
     let model_path = (!stopped_early).then(|| run_dir.join("model.safetensors"));
     if let Some(path) = &model_path {
-        save_model(path, &varmap, &model_config)?;
+        save_model(path, &varmap, &model_config, Some(step))?;
     }
     Ok(TrainSummary {
         steps_done: step,
