@@ -23,7 +23,7 @@ enum Task {
         /// Comma-separated variants (full, no-tg, no-depth, intensity).
         #[arg(long, value_delimiter = ',', default_value = "full,no-tg,no-depth,intensity")]
         variants: Vec<String>,
-        /// Training steps per variant (the default recipe's when not given: about 22 minutes each
+        /// Training steps per variant (the default recipe's when not given: about 21 minutes each
         /// on 2 cores).
         #[arg(long)]
         steps: Option<u64>,
