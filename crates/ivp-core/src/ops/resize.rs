@@ -372,6 +372,22 @@ mod tests {
     }
 
     #[test]
+    fn bilinear_matches_candle_forward() {
+        // candle's own resize has the same half-pixel convention, but no backward (SPEC §8).
+        for (i, (b, c, h, w, height, width)) in
+            [(2, 3, 5, 7, 10, 14), (1, 2, 4, 3, 7, 5), (1, 1, 1, 1, 2, 2), (1, 1, 9, 6, 17, 11)].into_iter().enumerate()
+        {
+            let x = random(&[b, c, h, w], 40 + i as u64);
+            let got = flat(&upsample_bilinear_to(&x, height, width).unwrap());
+            let want = flat(&x.upsample_bilinear2d(height, width, false).unwrap());
+            assert_eq!(got.len(), want.len());
+            for (j, (g, w)) in got.iter().zip(&want).enumerate() {
+                assert!((g - w).abs() <= 1e-4, "{:?} to {height}x{width}, value {j}: {g} vs {w}", x.dims());
+            }
+        }
+    }
+
+    #[test]
     fn bilinear_hand_computed() {
         // [0, 1] to 4: sources -0.25 (clamped to 0), 0.25, 0.75, 1.25 (last pixel repeated).
         let x = tensor(vec![0., 1., 2., 3.], &[1, 1, 2, 2]);
