@@ -54,7 +54,7 @@ pub fn save_model(
 ) -> Result<(), CheckpointError> {
     let tensors: Vec<(String, Tensor)> =
         named_parameters(varmap).into_iter().map(|(name, var)| (name, var.as_tensor().clone())).collect();
-    write(path, tensors, model_file_metadata(config, step))
+    write(path, tensors, model_metadata(config, MODEL_FORMAT, step))
 }
 
 /// Writes a checkpoint of `step`: parameters, Adam's state and the training configuration.
@@ -72,8 +72,7 @@ pub fn save_checkpoint(
     let mut adam: Vec<(String, Tensor)> = adam.into_iter().collect();
     adam.sort_by(|a, b| a.0.cmp(&b.0));
     tensors.extend(adam);
-    let mut metadata = model_metadata(config, CHECKPOINT_FORMAT);
-    metadata.insert("ivp.step".into(), step.to_string());
+    let mut metadata = model_metadata(config, CHECKPOINT_FORMAT, Some(step));
     metadata.insert("ivp.adam_steps".into(), adam_steps.to_string());
     metadata.insert("ivp.train_config".into(), train_config_json.to_string());
     write(path, tensors, metadata)
@@ -102,7 +101,7 @@ pub fn export_model(checkpoint: &Path, out: &Path) -> Result<ModelConfig, Checkp
     let (_, config, mut tensors, step) = read_model(checkpoint)?;
     let mut tensors: Vec<(String, Tensor)> = tensors.drain().collect();
     tensors.sort_by(|a, b| a.0.cmp(&b.0));
-    write(out, tensors, model_file_metadata(&config, step))?;
+    write(out, tensors, model_metadata(&config, MODEL_FORMAT, step))?;
     Ok(config)
 }
 
@@ -183,22 +182,19 @@ pub fn varbuilder(varmap: &VarMap) -> VarBuilder<'static> {
     VarBuilder::from_varmap(varmap, candle_core::DType::F32, &Device::Cpu)
 }
 
-/// The metadata of a model file: the configuration, and the training step when known.
-fn model_file_metadata(config: &ModelConfig, step: Option<u64>) -> HashMap<String, String> {
-    let mut metadata = model_metadata(config, MODEL_FORMAT);
-    if let Some(step) = step {
-        metadata.insert("ivp.step".into(), step.to_string());
-    }
-    metadata
-}
-
-fn model_metadata(config: &ModelConfig, format: &str) -> HashMap<String, String> {
-    HashMap::from([
+/// The metadata that model files and checkpoints share: format, configuration, version, and the
+/// training step of the weights when known.
+fn model_metadata(config: &ModelConfig, format: &str, step: Option<u64>) -> HashMap<String, String> {
+    let mut metadata = HashMap::from([
         ("ivp.format".to_string(), format.to_string()),
         ("ivp.variant".to_string(), config.variant.as_str().to_string()),
         ("ivp.width_mult".to_string(), config.width_mult.to_string()),
         ("ivp.version".to_string(), env!("CARGO_PKG_VERSION").to_string()),
-    ])
+    ]);
+    if let Some(step) = step {
+        metadata.insert("ivp.step".to_string(), step.to_string());
+    }
+    metadata
 }
 
 fn model_config_from(path: &Path, metadata: &HashMap<String, String>) -> Result<ModelConfig, CheckpointError> {

@@ -110,7 +110,7 @@ struct TrainArgs {
     /// Width multiplier of the U-Net: 1 = the paper's widths (64 ... 256); recipe: 0.25.
     #[arg(long)]
     width_mult: Option<f64>,
-    /// Training steps (recipe: 5000, about 20 minutes on 2 cores).
+    /// Training steps (recipe: 5000, about 21 minutes on 2 cores).
     #[arg(long)]
     steps: Option<u64>,
     /// Crops per step (recipe: 16).

@@ -395,9 +395,10 @@ fn sum(v: &[f32]) -> f32 {
 /// Forward: `out[b, co, p] = bias[co] + sum_r w[co, r] im2col(x[b])[r, p]`, on im2col tiles, or by
 /// the direct kernels of [`narrow`] for stride 1 with few outputs.
 fn forward(g: &Geom, x: &[f32], w: &[f32], bias: Option<&[f32]>, tile_bytes: usize) -> Vec<f32> {
-    match narrow::applies(g) {
-        true => narrow::forward(g, x, w, bias),
-        false => tiled_forward(g, x, w, bias, tile_bytes),
+    if narrow::applies(g) {
+        narrow::forward(g, x, w, bias)
+    } else {
+        tiled_forward(g, x, w, bias, tile_bytes)
     }
 }
 
@@ -505,9 +506,10 @@ fn col2im_grad(g: &Geom, grad: &[f32], w: &[f32], tile_bytes: usize) -> Vec<f32>
 /// Weight gradient `dw (Cout x taps)`: on im2col tiles, or by the direct kernels of [`narrow`] for
 /// stride 1 with few outputs.
 fn weight_grad(g: &Geom, x: &[f32], grad: &[f32], tile_bytes: usize) -> Vec<f32> {
-    match narrow::applies(g) {
-        true => narrow::weight_grad(g, x, grad),
-        false => tiled_weight_grad(g, x, grad, tile_bytes),
+    if narrow::applies(g) {
+        narrow::weight_grad(g, x, grad)
+    } else {
+        tiled_weight_grad(g, x, grad, tile_bytes)
     }
 }
 
