@@ -5,7 +5,7 @@ use std::collections::HashMap;
 use std::process::Command;
 
 use candle_core::{Device, Tensor};
-use ivp_core::model::{IvpNet, ModelConfig, NetInput, Variant};
+use ivp_core::nn::model::{IvpNet, ModelConfig, NetInput, Variant};
 use ivp_tests::{python_has, torch_reference_dir};
 use ivp_train::checkpoint::{load_model, save_model};
 

@@ -1,5 +1,5 @@
 //! The convolutions of the IVP network (SPEC §6.1) at batch 4 on a 256x256 crop, through
-//! `ivp_core::ops::conv2d`: forward, and forward + backward (input, weight and bias gradients).
+//! `ivp_core::nn::ops::conv2d`: forward, and forward + backward (input, weight and bias gradients).
 //!
 //! `cargo bench -p ivp-core --bench conv [-- FILTER]`. Criterion's throughput is in floating-point
 //! operations: its "Gelem/s" reads as GFLOP/s. A forward pass counts 2 Cout Cin k k Ho Wo B, and
@@ -13,7 +13,7 @@ use std::time::Duration;
 
 use candle_core::{Device, Tensor, Var};
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
-use ivp_core::ops::conv2d;
+use ivp_core::nn::ops::conv2d;
 
 /// A layer: name, Cin, Cout, kernel, stride, input size (square).
 type Layer = (&'static str, usize, usize, usize, usize, usize);

@@ -1,17 +1,20 @@
 //! A trained network at test time, on images: the [`VectorPredictor`] behind the iterative
 //! infilling (SPEC §6.5), and [`ModelInfiller`], the network as an [`Infiller`] beside the
 //! classical methods.
+//!
+//! Layer: the top of the crate; the one place where `nn` meets `infill` and `prior`.
 
 use std::time::{Duration, Instant};
 
 use candle_core::{Device, Tensor};
 
-use crate::infill::{fill_new_regions, InfillContext, InfillError, Infilled, Infiller};
-use crate::iterative::{infill_iteratively, VectorPredictor};
-use crate::model::{IvpNet, NetInput, Variant};
-use crate::prior::prior_for_context;
-use crate::{relative_pose, warp_forward, HoleMask, Image, RgbImage, VectorField};
-use crate::{DepthMap, PixelClass};
+use crate::geometry::{DepthMap, HoleMask, PixelClass, RgbImage, VectorField};
+use crate::infill::iterative::{infill_iteratively, VectorPredictor};
+use crate::infill::rules::fill_new_regions;
+use crate::infill::{InfillContext, InfillError, Infilled, Infiller};
+use crate::nn::model::{IvpNet, NetInput, Variant};
+use crate::nn::tensor::{from_tensor, to_tensor};
+use crate::prior::warp_to_last;
 
 /// One frame's inputs to a network at test time.
 #[derive(Clone, Copy, Debug)]
@@ -133,17 +136,15 @@ impl ModelInfiller {
         let (w, h) = (warped.image.width(), warped.image.height());
         let started = Instant::now();
         let variant = self.net.config().variant;
-        let prior = match variant {
-            // The prior is measured on frame n-2; without it (first frames) the model runs without.
-            Variant::Full | Variant::NoDepth => prior_for_context(ctx).unwrap_or_else(|| VectorField::zeros(w, h)),
-            Variant::NoTemporalPrior | Variant::Intensity => VectorField::zeros(w, h),
-        };
-        let last_warped = match (variant, &ctx.before_last) {
-            (Variant::Intensity, Some(b)) => {
-                Some(warp_forward(b.image, b.depth, ctx.intrinsics, &relative_pose(b.pose, ctx.last.pose)).image)
+        // The prior is measured on frame n-2; without it (first frames) the model runs without.
+        let (prior, last_warped) = match variant {
+            Variant::Full | Variant::NoDepth => (ctx.temporal_prior().map(|p| p.prior), None),
+            Variant::Intensity => {
+                (None, ctx.before_last.as_ref().map(|b| warp_to_last(b, &ctx.last, ctx.intrinsics).image))
             }
-            _ => None,
+            Variant::NoTemporalPrior => (None, None),
         };
+        let prior = prior.unwrap_or_else(|| VectorField::zeros(w, h));
         let prior_time = started.elapsed();
         let inputs = FrameInputs {
             warped: &warped.image,
@@ -175,43 +176,10 @@ impl Infiller for ModelInfiller {
     }
 }
 
-/// An image as a (1, C, H, W) tensor.
-pub fn to_tensor<const C: usize>(image: &Image<C>) -> candle_core::Result<Tensor> {
-    let plane = image.len();
-    let mut data = vec![0f32; C * plane];
-    for (c, out) in data.chunks_exact_mut(plane.max(1)).enumerate().take(C) {
-        for (v, p) in out.iter_mut().zip(image.pixels()) {
-            *v = p[c];
-        }
-    }
-    Tensor::from_vec(data, (1, C, image.height(), image.width()), &Device::Cpu)
-}
-
-/// The first image of a (B, C, H, W) tensor.
-pub fn from_tensor<const C: usize>(t: &Tensor) -> candle_core::Result<Image<C>> {
-    let (_, c, h, w) = t.dims4()?;
-    if c != C {
-        candle_core::bail!("expected {C} channels, got {c}");
-    }
-    let data: Vec<f32> = t.get(0)?.flatten_all()?.to_vec1()?;
-    let plane = h * w;
-    let pixels = (0..plane).map(|i| std::array::from_fn(|ch| data[ch * plane + i])).collect();
-    Ok(Image::from_pixels(w, h, pixels))
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::model::ModelConfig;
-
-    #[test]
-    fn tensors_and_images_convert_both_ways() {
-        let image = RgbImage::from_pixels(3, 2, (0..6).map(|i| [i as f32, 10.0 + i as f32, 20.0 + i as f32]).collect());
-        let t = to_tensor(&image).unwrap();
-        assert_eq!(t.dims(), [1, 3, 2, 3]);
-        assert_eq!(t.get(0).unwrap().get(1).unwrap().flatten_all().unwrap().to_vec1::<f32>().unwrap()[4], 14.0);
-        assert_eq!(from_tensor::<3>(&t).unwrap(), image);
-    }
+    use crate::nn::model::ModelConfig;
 
     #[test]
     fn the_network_predicts_vectors_only_on_holes_and_fills_every_hole() {
@@ -292,6 +260,59 @@ mod tests {
             };
             let image = infill_frame(&net, &inputs, 3).unwrap();
             assert!(image.pixels().iter().flatten().all(|c| c.is_finite()), "{label}");
+        }
+    }
+
+    /// Frames n-2, n and t of the box scene, and the warp n -> t.
+    struct BoxScene {
+        k: crate::geometry::Intrinsics,
+        frames: Vec<(RgbImage, DepthMap, crate::geometry::WorldToCamera)>,
+        warped: crate::geometry::Warp,
+    }
+
+    impl BoxScene {
+        fn new() -> Self {
+            let k = crate::test_scene::intrinsics();
+            let frames: Vec<_> = [0.1, 0.2, 0.3].into_iter().map(crate::test_scene::render).collect();
+            let (last, target) = (&frames[1], &frames[2]);
+            let to_target = crate::geometry::relative_pose(&last.2, &target.2);
+            let warped = crate::geometry::warp_forward(&last.0, &last.1, &k, &to_target);
+            Self { k, frames, warped }
+        }
+
+        fn context(&self, with_before_last: bool) -> InfillContext<'_> {
+            let view = |i: usize| crate::geometry::FrameView {
+                image: &self.frames[i].0,
+                depth: &self.frames[i].1,
+                pose: &self.frames[i].2,
+            };
+            InfillContext {
+                intrinsics: &self.k,
+                last: view(1),
+                before_last: with_before_last.then(|| view(0)),
+                target_pose: &self.frames[2].2,
+                warped: &self.warped,
+                ground_truth: None,
+            }
+        }
+    }
+
+    #[test]
+    fn the_model_infiller_reads_the_temporal_prior_only_in_the_variants_that_have_one() {
+        let scene = BoxScene::new();
+        let (with, without) = (scene.context(true), scene.context(false));
+        assert!(with.temporal_prior().unwrap().prior.as_flat().iter().any(|&x| x != 0.0));
+        for (variant, reads_prior) in [(Variant::Full, true), (Variant::NoDepth, true), (Variant::NoTemporalPrior, false)]
+        {
+            let (net, _) = IvpNet::seeded(ModelConfig { variant, width_mult: 0.125 }, 3).unwrap();
+            let model = ModelInfiller::new("ivp", net, 3);
+            let a = model.predict(&with).unwrap();
+            let b = model.predict(&without).unwrap();
+            let names: Vec<&str> = a.stages.iter().map(|(name, _)| *name).collect();
+            assert_eq!(names, ["prior", "network", "infill"], "{variant}");
+            assert_eq!(a.vectors != b.vectors, reads_prior, "{variant}");
+            let infilled = model.infill(&with).unwrap();
+            assert_eq!(infilled.image, a.image, "{variant}");
         }
     }
 }

@@ -3,12 +3,17 @@
 //! Every metric is on the 8-bit scale: image values in `[0, 1]` are multiplied by 255. All sums run
 //! in f64, and every parallel loop writes to fixed slots (no parallel float reduction), so results
 //! are bit-for-bit reproducible whatever the thread count.
+//!
+//! The SSIM parameters (window, sigma, `K1`, `K2`) are defined here once; the SSIM loss of `nn`
+//! uses the same ones on the 0..1 scale.
+//!
+//! Layer: imports `geometry` only.
 
 use glam::DVec2;
 use rayon::prelude::*;
 
-use crate::camera::{transform_point, Intrinsics, WorldToCamera};
-use crate::image::{is_valid_depth, DepthMap, RgbImage};
+use crate::geometry::camera::{transform_point, Intrinsics, WorldToCamera};
+use crate::geometry::image::{is_valid_depth, DepthMap, RgbImage};
 
 /// Image values are multiplied by this before scoring (metrics are on 0..255).
 const SCALE: f64 = 255.0;
@@ -19,10 +24,22 @@ pub const SSIM_RADIUS: usize = 5;
 pub const SSIM_WINDOW: usize = 2 * SSIM_RADIUS + 1;
 /// Standard deviation of the SSIM Gaussian, in pixels.
 pub const SSIM_SIGMA: f64 = 1.5;
+/// SSIM's luminance constant is `(K1 L)^2` for values of dynamic range `L`.
+pub const SSIM_K1: f64 = 0.01;
+/// SSIM's contrast constant is `(K2 L)^2` for values of dynamic range `L`.
+pub const SSIM_K2: f64 = 0.03;
+/// SSIM's luminance constant for values of dynamic range `range`.
+pub const fn ssim_c1(range: f64) -> f64 {
+    (SSIM_K1 * range) * (SSIM_K1 * range)
+}
+/// SSIM's contrast constant for values of dynamic range `range`.
+pub const fn ssim_c2(range: f64) -> f64 {
+    (SSIM_K2 * range) * (SSIM_K2 * range)
+}
 /// SSIM's luminance constant on the 0..255 scale: `(0.01 * 255)^2`.
-pub const SSIM_C1: f64 = (0.01 * 255.0) * (0.01 * 255.0);
+pub const SSIM_C1: f64 = ssim_c1(SCALE);
 /// SSIM's contrast constant on the 0..255 scale: `(0.03 * 255)^2`.
-pub const SSIM_C2: f64 = (0.03 * 255.0) * (0.03 * 255.0);
+pub const SSIM_C2: f64 = ssim_c2(SCALE);
 
 /// Neighbourhood of the TC tracks: offsets with `|dx|, |dy| <= TC_RADIUS` (SPEC §7).
 pub const TC_RADIUS: isize = 8;

@@ -1,13 +1,17 @@
 //! Fictitious infilling vectors and the smoothed temporal prior (SPEC §6.2), and the per-pixel
 //! background depth threshold of the iterative infilling (SPEC §6.5).
+//!
+//! Layer: imports `geometry` only. [`target_prior`] is the one recipe of a target's prior, used by
+//! training samples (ivp-data) and by inference alike.
 
 use glam::DMat4;
 use rayon::prelude::*;
 
-use crate::image::is_valid_depth;
-use crate::infill::{Direction, FrameView, InfillContext, NearestKnown, Pixel};
-use crate::{
-    relative_pose, splat_field, warp_forward, DepthMap, Image, Intrinsics, RgbImage, VectorField, WorldToCamera,
+use crate::geometry::image::is_valid_depth;
+use crate::geometry::nearest::NearestKnown;
+use crate::geometry::{
+    relative_pose, splat_field, warp_forward, DepthMap, Direction, FrameView, Image, Intrinsics, Pixel, RgbImage,
+    VectorField, Warp, WorldToCamera,
 };
 
 /// Half the side of the patches compared by the fictitious-vector search (5x5 patches).
@@ -200,26 +204,36 @@ impl NonZeroSums {
     }
 }
 
-/// The temporal prior of target `t` from the two last rendered frames: warps `n-2` to `n`,
-/// measures fictitious vectors on the holes of that warp with `f_n` as ground truth, and turns
-/// them into the prior with [`temporal_prior`]. `known_t` is the known mask of the warp `n -> t`.
-pub fn prior_for_target(
+/// The temporal prior of a target, with the warp of frame `n - 2` into view `n` that it was
+/// measured on (the intensity variant reads that warp too, so nobody warps it twice).
+#[derive(Clone, Debug)]
+pub struct TargetPrior {
+    /// `(alpha^w, beta^w)` of the target, zero on its holes.
+    pub prior: VectorField,
+    /// `f_{n-2}` warped into view `n`: the fictitious vectors were measured on its holes.
+    pub warp_to_last: Warp,
+}
+
+/// Frame `n - 2` warped into the view of frame `n` (SPEC §6.2 step 1).
+pub fn warp_to_last(before_last: &FrameView<'_>, last: &FrameView<'_>, k: &Intrinsics) -> Warp {
+    warp_forward(before_last.image, before_last.depth, k, &relative_pose(before_last.pose, last.pose))
+}
+
+/// The temporal prior of target `t` from the two last rendered frames (SPEC §6.2 steps 1-3), the
+/// one recipe of training samples and inference: warps `n-2` to `n`, measures fictitious vectors
+/// on the holes of that warp with `f_n` as ground truth, and turns them into the prior with
+/// [`temporal_prior`]. `known_t` is the known mask of the warp `n -> t`.
+pub fn target_prior(
     before_last: &FrameView<'_>,
     last: &FrameView<'_>,
     target_pose: &WorldToCamera,
     k: &Intrinsics,
     known_t: &[bool],
-) -> VectorField {
-    let to_last = relative_pose(before_last.pose, last.pose);
-    let warp_to_last = warp_forward(before_last.image, before_last.depth, k, &to_last);
+) -> TargetPrior {
+    let warp_to_last = warp_to_last(before_last, last, k);
     let vectors = estimate_fictitious_vectors(&warp_to_last.holes.known(), last.image);
-    temporal_prior(&vectors, last.depth, k, &relative_pose(last.pose, target_pose), known_t)
-}
-
-/// [`prior_for_target`] for an infilling context; `None` when it has no frame `n-2`.
-pub fn prior_for_context(ctx: &InfillContext<'_>) -> Option<VectorField> {
-    let before_last = ctx.before_last.as_ref()?;
-    Some(prior_for_target(before_last, &ctx.last, ctx.target_pose, ctx.intrinsics, &ctx.warped.holes.known()))
+    let prior = temporal_prior(&vectors, last.depth, k, &relative_pose(last.pose, target_pose), known_t);
+    TargetPrior { prior, warp_to_last }
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -285,7 +299,7 @@ fn threshold_from_depths(depths: &mut [f32]) -> Option<f32> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::infill::test_scene;
+    use crate::test_scene;
 
     /// The known mask of a `w` x `h` frame whose holes are where `is_hole` says.
     fn known_where_not(w: usize, h: usize, is_hole: impl Fn(usize, usize) -> bool) -> Vec<bool> {
@@ -510,7 +524,8 @@ mod tests {
         let known_t = warp_t.holes.known();
         let before_last = FrameView { image: &f0, depth: &d0, pose: &p0 };
         let last = FrameView { image: &f2, depth: &d2, pose: &p2 };
-        let prior = prior_for_target(&before_last, &last, &p3, &k, &known_t);
+        let TargetPrior { prior, warp_to_last } = target_prior(&before_last, &last, &p3, &k, &known_t);
+        assert_eq!(warp_to_last.image, warp_forward(&f0, &d0, &k, &relative_pose(&p0, &p2)).image);
         assert_all_finite(&prior);
         let nonzero: Vec<[f32; 2]> = prior.pixels().iter().copied().filter(|&[a, b]| a != 0.0 || b != 0.0).collect();
         assert!(nonzero.len() > 20, "only {} non-zero prior vectors", nonzero.len());

@@ -27,10 +27,10 @@ pub enum DataError {
     #[error(
         "{}: no depth channel: expected a single channel or one of {}, found channels [{}]",
         path.display(),
-        crate::io::DEPTH_CHANNELS.join(", "),
+        accepted.join(", "),
         channels.join(", ")
     )]
-    NoDepthChannel { path: PathBuf, channels: Vec<String> },
+    NoDepthChannel { path: PathBuf, channels: Vec<String>, accepted: &'static [&'static str] },
 
     /// A malformed line of a CSV file (1-based line number).
     #[error("{}: line {line}: {problem}", path.display())]

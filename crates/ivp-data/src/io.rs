@@ -10,7 +10,7 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use exr::prelude as ex;
 use exr::prelude::traits::*; // the builder methods of `exr` live in traits
 use image::{DynamicImage, ImageEncoder, ImageReader};
-use ivp_core::image::to_u8;
+use ivp_core::geometry::image::to_u8;
 use ivp_core::{DepthMap, RgbImage};
 
 use crate::error::{DataError, Result};
@@ -154,7 +154,7 @@ pub fn pick_depth_channel(names: &[String]) -> Option<usize> {
 }
 
 fn no_depth_channel(path: &Path, channels: Vec<String>) -> DataError {
-    DataError::NoDepthChannel { path: path.to_path_buf(), channels }
+    DataError::NoDepthChannel { path: path.to_path_buf(), channels, accepted: &DEPTH_CHANNELS }
 }
 
 /// Writes a depth map as an EXR with the single f32 channel `Y`, lossless (ZIP) and byte-deterministic.

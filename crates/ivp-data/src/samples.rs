@@ -40,4 +40,4 @@ pub use sample::{Sample, SampleOrigin};
 pub use source::{ClipFrames, ClipSource, DatasetSource, FnSource};
 pub use stream::{SampleStream, StreamOptions};
 pub use synthetic::SyntheticSource;
-pub use target::{Direction, TargetFrames};
+pub use target::{Playback, TargetFrames};

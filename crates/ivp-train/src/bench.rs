@@ -7,10 +7,10 @@ use std::time::{Duration, Instant};
 
 use anyhow::Result;
 use candle_core::{Device, Tensor};
-use ivp_core::loss::LossWeights;
-use ivp_core::model::{named_parameters, IvpNet, ModelConfig, NetInput, Variant};
-use ivp_core::ops::profile;
-use ivp_core::optim::{Adam, AdamConfig};
+use ivp_core::nn::loss::LossWeights;
+use ivp_core::nn::model::{named_parameters, IvpNet, ModelConfig, NetInput, Variant};
+use ivp_core::nn::ops::profile;
+use ivp_core::nn::optim::{Adam, AdamConfig};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rand_distr::StandardNormal;

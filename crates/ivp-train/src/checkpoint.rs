@@ -14,8 +14,8 @@ use std::path::{Path, PathBuf};
 
 use candle_core::{Device, Tensor};
 use candle_nn::{VarBuilder, VarMap};
-use ivp_core::model::{named_parameters, IvpNet, ModelConfig};
-use ivp_core::optim::Adam;
+use ivp_core::nn::model::{named_parameters, IvpNet, ModelConfig};
+use ivp_core::nn::optim::Adam;
 
 /// Written to `ivp.format`; a file of another format is refused with a clear message.
 pub const MODEL_FORMAT: &str = "ivp-model-1";

@@ -7,7 +7,8 @@ use std::time::{Duration, Instant};
 
 use anyhow::{bail, Context, Result};
 use indicatif::{ProgressBar, ProgressStyle};
-use ivp_core::infill::{FrameView, InfillContext, Infiller};
+use ivp_core::geometry::FrameView;
+use ivp_core::infill::{InfillContext, Infiller};
 use ivp_core::metrics::{score_frame, tc_track_variances, FrameScores, TcSequence};
 use ivp_core::{relative_pose, warp_forward, RgbImage, Warp};
 use ivp_data::{find_clips, read_rgb, Clip, Frame};

@@ -5,7 +5,8 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context, Result};
 use ivp_core::inference::{ModelInfiller, ModelPrediction};
-use ivp_core::infill::{FrameView, InfillContext};
+use ivp_core::geometry::FrameView;
+use ivp_core::infill::InfillContext;
 use ivp_core::{RgbImage, Warp};
 use ivp_data::{write_gray_png, write_rgb_png, Clip, Frame};
 
@@ -176,7 +177,7 @@ fn write_gif(path: &Path, frames: &[RgbImage]) -> Result<()> {
                 .pixels()
                 .iter()
                 .flat_map(|p| {
-                    [ivp_core::image::to_u8(p[0]), ivp_core::image::to_u8(p[1]), ivp_core::image::to_u8(p[2]), 255]
+                    [ivp_core::geometry::image::to_u8(p[0]), ivp_core::geometry::image::to_u8(p[1]), ivp_core::geometry::image::to_u8(p[2]), 255]
                 })
                 .collect();
             let buffer =

@@ -164,7 +164,7 @@ struct InferArgs {
     #[arg(long)]
     target: usize,
     /// Iterations of the test-time infilling (SPEC §6.5).
-    #[arg(long, default_value_t = ivp_core::iterative::DEFAULT_ITERATIONS)]
+    #[arg(long, default_value_t = ivp_core::infill::DEFAULT_ITERATIONS)]
     iterations: usize,
     /// Output folder: infilled.png, holes.png, vectors.png, error.png.
     #[arg(long)]
@@ -180,7 +180,7 @@ struct UpsampleArgs {
     #[arg(long)]
     model: PathBuf,
     /// Iterations of the test-time infilling (SPEC §6.5).
-    #[arg(long, default_value_t = ivp_core::iterative::DEFAULT_ITERATIONS)]
+    #[arg(long, default_value_t = ivp_core::infill::DEFAULT_ITERATIONS)]
     iterations: usize,
     /// Output folder: frames/NNNN.png and preview.gif.
     #[arg(long)]
@@ -275,7 +275,7 @@ struct EvalArgs {
     #[arg(long, value_name = "[NAME=]FILE")]
     model: Vec<String>,
     /// Iterations of the models' test-time infilling (SPEC §6.5).
-    #[arg(long, default_value_t = ivp_core::iterative::DEFAULT_ITERATIONS)]
+    #[arg(long, default_value_t = ivp_core::infill::DEFAULT_ITERATIONS)]
     iterations: usize,
     /// Score frames predicted by another tool: NAME=DIR, read from DIR/<clip name>/<t:04>.png.
     #[arg(long, value_name = "NAME=DIR")]
@@ -594,7 +594,7 @@ fn run_demo(args: DemoArgs, progress: bool) -> Result<()> {
         .iter()
         .map(|m| Method::Internal(classical_infiller(m).expect("a classical method")))
         .collect();
-    methods.push(Method::Internal(Box::new(ModelInfiller::new("ivp", net, ivp_core::iterative::DEFAULT_ITERATIONS))));
+    methods.push(Method::Internal(Box::new(ModelInfiller::new("ivp", net, ivp_core::infill::DEFAULT_ITERATIONS))));
     println!("evaluating on {}", data.display());
     let report = evaluate(&data, &DEFAULT_TARGETS, &methods, progress)?;
     print!("{}", format_table(&report));

@@ -14,9 +14,9 @@ use std::time::{Duration, Instant};
 use anyhow::{bail, ensure, Context, Result};
 use candle_core::Tensor;
 use candle_nn::VarMap;
-use ivp_core::loss::{ivp_loss, LossWeights};
-use ivp_core::model::{named_parameters, IvpNet, ModelConfig, NetInput, Variant};
-use ivp_core::optim::{Adam, AdamConfig};
+use ivp_core::nn::loss::{ivp_loss, LossWeights};
+use ivp_core::nn::model::{named_parameters, IvpNet, ModelConfig, NetInput, Variant};
+use ivp_core::nn::optim::{Adam, AdamConfig};
 use ivp_data::samples::{
     Batch, ClipSource, DatasetSource, SampleConfig, SampleGenerator, SampleStream, Split, StreamOptions,
     SyntheticSource,
@@ -84,7 +84,7 @@ impl Default for TrainConfig {
             log_every: 25,
             validate_every: 250,
             validation_samples: 192,
-            iterations: ivp_core::iterative::DEFAULT_ITERATIONS,
+            iterations: ivp_core::infill::DEFAULT_ITERATIONS,
             checkpoint_every: 250,
             keep_checkpoints: 3,
             data_workers: 1,
@@ -380,7 +380,7 @@ pub fn guide_loss(vectors: &Tensor, prior: &Tensor, mask: &Tensor) -> Result<Ten
     let mut target = Vec::with_capacity(b * 2 * h * w);
     let mut has_target = Vec::with_capacity(b * h * w);
     for i in 0..b {
-        let field: ivp_core::VectorField = ivp_core::inference::from_tensor(&prior.narrow(0, i, 1)?)?;
+        let field: ivp_core::VectorField = ivp_core::nn::tensor::from_tensor(&prior.narrow(0, i, 1)?)?;
         let spread = ivp_core::prior::mean_of_nonzero_vectors(&field, GUIDE_RADIUS);
         for c in 0..2 {
             target.extend(spread.pixels().iter().map(|p| p[c]));

@@ -8,7 +8,7 @@ use anyhow::Result;
 use ivp_core::inference::{infill_frame, FrameInputs};
 use ivp_core::infill::fill_disocclusions_background;
 use ivp_core::metrics::score_frame;
-use ivp_core::model::IvpNet;
+use ivp_core::nn::model::IvpNet;
 use ivp_core::{HoleMask, PixelClass, RgbImage};
 use ivp_data::samples::{ClipSource, Sample, SampleConfig, SampleGenerator, Split};
 use rayon::prelude::*;

@@ -1,6 +1,7 @@
 //! A batch of samples as candle tensors (CPU, f32, NCHW).
 
-use candle_core::{Device, Tensor};
+use candle_core::Tensor;
+use ivp_core::nn::tensor::to_batch_tensor;
 use ivp_core::Image;
 
 use super::sample::{Sample, SampleOrigin};
@@ -57,20 +58,8 @@ impl Batch {
     }
 }
 
-/// One field of every sample as a `(B, C, H, W)` tensor: interleaved pixels become planes.
+/// One field of every sample as a `(B, C, H, W)` tensor.
 fn stack<const C: usize>(samples: &[Sample], field: impl Fn(&Sample) -> &Image<C>) -> Tensor {
-    let (width, height) = (field(&samples[0]).width(), field(&samples[0]).height());
-    let plane = width * height;
-    let mut data = vec![0f32; samples.len() * C * plane];
-    for (sample, planes) in samples.iter().zip(data.chunks_exact_mut(C * plane)) {
-        let pixels = field(sample).pixels();
-        // One plane at a time: sequential writes, which vectorise (interleaved ones did not).
-        for (c, out) in planes.chunks_exact_mut(plane).enumerate() {
-            for (value, pixel) in out.iter_mut().zip(pixels) {
-                *value = pixel[c];
-            }
-        }
-    }
-    Tensor::from_vec(data, (samples.len(), C, height, width), &Device::Cpu)
-        .expect("the buffer holds exactly B * C * H * W values")
+    let images: Vec<&Image<C>> = samples.iter().map(field).collect();
+    to_batch_tensor(&images).expect("the samples of a batch share one crop size")
 }

@@ -6,7 +6,7 @@ use std::path::PathBuf;
 use std::sync::{Arc, Condvar, Mutex, MutexGuard, OnceLock, PoisonError};
 
 use super::source::ClipFrames;
-use super::target::{Direction, PreparedTarget, TargetFrames};
+use super::target::{Playback, PreparedTarget, TargetFrames};
 use crate::error::Result;
 
 /// A clip's frames and its prepared targets.
@@ -31,11 +31,11 @@ impl LoadedClip {
 
     /// Target `i` in `direction`, prepared on first use (a concurrent caller waits for it rather
     /// than computing it twice); `None` if it has no disocclusion.
-    pub fn target(&self, direction: Direction, i: usize) -> Option<&PreparedTarget> {
+    pub fn target(&self, direction: Playback, i: usize) -> Option<&PreparedTarget> {
         let per_direction = self.targets_per_direction();
         let slot = match direction {
-            Direction::Forward => i,
-            Direction::Reversed => per_direction + i,
+            Playback::Forward => i,
+            Playback::Reversed => per_direction + i,
         };
         let frames = TargetFrames::new(self.frames.len(), direction, i);
         self.targets[slot].get_or_init(|| PreparedTarget::compute(&self.frames, frames)).as_ref()

@@ -17,7 +17,7 @@ use super::cache::{ClipCache, LoadedClip};
 use super::rng::{hash_words, Rng};
 use super::sample::Sample;
 use super::source::ClipSource;
-use super::target::Direction;
+use super::target::Playback;
 use crate::error::{DataError, Result};
 
 /// Everything but the step that a batch depends on (with the source's clips and the split).
@@ -136,7 +136,7 @@ impl SampleGenerator {
         let pool = self.pool(step);
         for _ in 0..MAX_DRAWS {
             let clip = self.clip(pool.start + rng.below(self.config.pool_size as u64))?;
-            let direction = Direction::BOTH[rng.index(2)];
+            let direction = Playback::BOTH[rng.index(2)];
             let targets = clip.targets_per_direction();
             if targets == 0 {
                 continue;

@@ -6,7 +6,7 @@ use ivp_core::{DepthMap, Image, Intrinsics, PixelClass, RgbImage, VectorField};
 
 use super::crop::CropWindow;
 use super::source::ClipFrames;
-use super::target::{Direction, PreparedTarget, TargetFrames};
+use super::target::{Playback, PreparedTarget, TargetFrames};
 
 /// Where a sample was cut from.
 #[derive(Clone, Debug, PartialEq)]
@@ -16,7 +16,7 @@ pub struct SampleOrigin {
     /// The clip's folder, or a description of a generated clip.
     pub clip_name: PathBuf,
     pub intrinsics: Intrinsics,
-    pub direction: Direction,
+    pub direction: Playback,
     pub frames: TargetFrames,
     pub window: CropWindow,
     /// The disocclusion pixel the crop was centred on, in frame coordinates.
@@ -56,7 +56,7 @@ impl Sample {
         target: &PreparedTarget,
         centre_index: usize,
         size: usize,
-        origin: (u64, PathBuf, Direction),
+        origin: (u64, PathBuf, Playback),
     ) -> Self {
         let width = target.warped.image.width();
         let centre_pixel = target.disocclusions[centre_index] as usize;

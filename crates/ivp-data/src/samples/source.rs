@@ -3,6 +3,7 @@
 
 use std::path::{Path, PathBuf};
 
+use ivp_core::geometry::FrameView;
 use ivp_core::{Intrinsics, WorldToCamera};
 
 use crate::error::{DataError, Result};
@@ -17,6 +18,11 @@ pub struct ClipFrames {
 }
 
 impl ClipFrames {
+    /// Frame `i` as the prior and the infillers see it.
+    pub fn view(&self, i: usize) -> FrameView<'_> {
+        FrameView { image: &self.frames[i].image, depth: &self.frames[i].depth, pose: &self.poses[i] }
+    }
+
     /// Loads every frame of an opened clip.
     pub fn load(clip: &Clip) -> Result<Self> {
         let frames = (0..clip.len()).map(|i| clip.load_frame(i)).collect::<Result<Vec<_>>>()?;

@@ -1,7 +1,7 @@
 //! One training target of a clip: the frames it uses, and the warps and prior that every crop of
 //! it reads (SPEC §5, §6.2), computed once.
 
-use ivp_core::prior::{estimate_fictitious_vectors, temporal_prior};
+use ivp_core::prior::{target_prior, TargetPrior};
 use ivp_core::{relative_pose, warp_forward, RgbImage, VectorField, Warp};
 
 use super::source::ClipFrames;
@@ -9,13 +9,13 @@ use super::source::ClipFrames;
 /// Which way a clip is played. A static scene seen along the reversed frame sequence is another
 /// valid camera trajectory, with other disocclusions: it doubles the targets of every clip.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
-pub enum Direction {
+pub enum Playback {
     Forward,
     Reversed,
 }
 
-impl Direction {
-    pub const BOTH: [Direction; 2] = [Direction::Forward, Direction::Reversed];
+impl Playback {
+    pub const BOTH: [Playback; 2] = [Playback::Forward, Playback::Reversed];
 }
 
 /// The frames of one target `t = n + 1`, as indices into the clip (whatever the direction).
@@ -40,12 +40,12 @@ impl TargetFrames {
     }
 
     /// Target number `i` (`0..per_direction(frames)`) of a clip of `frames` frames played in `direction`.
-    pub fn new(frames: usize, direction: Direction, i: usize) -> Self {
+    pub fn new(frames: usize, direction: Playback, i: usize) -> Self {
         assert!(i < Self::per_direction(frames), "target {i} of a {frames}-frame clip");
         let position = FIRST_TARGET_POSITION + i;
         let frame = |p: usize| match direction {
-            Direction::Forward => p,
-            Direction::Reversed => frames - 1 - p,
+            Playback::Forward => p,
+            Playback::Reversed => frames - 1 - p,
         };
         Self { before_last: frame(position - 3), last: frame(position - 1), target: frame(position) }
     }
@@ -70,21 +70,18 @@ impl PreparedTarget {
     /// `None` when the warp `n -> t` has no disocclusion: such a target gives no sample.
     pub fn compute(clip: &ClipFrames, frames: TargetFrames) -> Option<Self> {
         let k = &clip.intrinsics;
-        let (before_last, last) = (&clip.frames[frames.before_last], &clip.frames[frames.last]);
-        let last_to_target = relative_pose(&clip.poses[frames.last], &clip.poses[frames.target]);
+        let (last, target_pose) = (clip.view(frames.last), &clip.poses[frames.target]);
         // Cheapest first: most targets of a moving camera have disocclusions, but a still one has none.
-        let warped = warp_forward(&last.image, &last.depth, k, &last_to_target);
+        let warped = warp_forward(last.image, last.depth, k, &relative_pose(last.pose, target_pose));
         let disocclusions: Vec<u32> = (warped.holes.disocclusions().iter().enumerate())
             .filter_map(|(i, &hole)| hole.then_some(i as u32))
             .collect();
         if disocclusions.is_empty() {
             return None;
         }
-        let before_last_to_last = relative_pose(&clip.poses[frames.before_last], &clip.poses[frames.last]);
-        let warped_last = warp_forward(&before_last.image, &before_last.depth, k, &before_last_to_last);
-        let vectors = estimate_fictitious_vectors(&warped_last.holes.known(), &last.image);
-        let prior = temporal_prior(&vectors, &last.depth, k, &last_to_target, &warped.holes.known());
-        Some(Self { frames, warped, prior, last_warped: warped_last.image, disocclusions })
+        let before_last = clip.view(frames.before_last);
+        let TargetPrior { prior, warp_to_last } = target_prior(&before_last, &last, target_pose, k, &warped.holes.known());
+        Some(Self { frames, warped, prior, last_warped: warp_to_last.image, disocclusions })
     }
 }
 
@@ -96,13 +93,13 @@ mod tests {
     fn targets_of_a_twelve_frame_clip() {
         assert_eq!(TargetFrames::per_direction(12), 9);
         assert_eq!(TargetFrames::per_direction(3), 0);
-        let first = TargetFrames::new(12, Direction::Forward, 0);
+        let first = TargetFrames::new(12, Playback::Forward, 0);
         assert_eq!(first, TargetFrames { before_last: 0, last: 2, target: 3 });
-        let last = TargetFrames::new(12, Direction::Forward, 8);
+        let last = TargetFrames::new(12, Playback::Forward, 8);
         assert_eq!(last, TargetFrames { before_last: 8, last: 10, target: 11 });
-        let reversed = TargetFrames::new(12, Direction::Reversed, 0);
+        let reversed = TargetFrames::new(12, Playback::Reversed, 0);
         assert_eq!(reversed, TargetFrames { before_last: 11, last: 9, target: 8 });
-        let reversed_last = TargetFrames::new(12, Direction::Reversed, 8);
+        let reversed_last = TargetFrames::new(12, Playback::Reversed, 8);
         assert_eq!(reversed_last, TargetFrames { before_last: 3, last: 1, target: 0 });
     }
 }

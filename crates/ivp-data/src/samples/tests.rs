@@ -7,8 +7,7 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use glam::{DMat4, DVec3};
-use ivp_core::infill::FrameView;
-use ivp_core::prior::prior_for_target;
+use ivp_core::prior::target_prior;
 use ivp_core::{relative_pose, warp_forward, Image, Intrinsics, WorldToCamera};
 
 use super::generator::validation_batches;
@@ -130,9 +129,8 @@ fn a_sample_matches_the_warps_and_prior_computed_directly() {
             &k,
             &relative_pose(&clip.poses[last], &clip.poses[target]),
         );
-        let view =
-            |i: usize| FrameView { image: &clip.frames[i].image, depth: &clip.frames[i].depth, pose: &clip.poses[i] };
-        let prior = prior_for_target(&view(before_last), &view(last), &clip.poses[target], &k, &warped.holes.known());
+        let known_t = warped.holes.known();
+        let prior = target_prior(&clip.view(before_last), &clip.view(last), &clip.poses[target], &k, &known_t).prior;
         let last_warped = warp_forward(
             &clip.frames[before_last].image,
             &clip.frames[before_last].depth,
@@ -181,14 +179,14 @@ fn prior_is_zero_on_the_holes_of_the_target_and_finite_everywhere() {
 fn reversed_clips_give_valid_samples_of_both_directions() {
     let generator = generator(4);
     let samples: Vec<Sample> = (0..10).flat_map(|step| generator.samples(step).unwrap()).collect();
-    for direction in Direction::BOTH {
+    for direction in Playback::BOTH {
         let of_direction: Vec<&Sample> = samples.iter().filter(|s| s.origin.direction == direction).collect();
         assert!(of_direction.len() >= 5, "{direction:?}: {} samples", of_direction.len());
         for sample in of_direction {
             let TargetFrames { before_last, last, target } = sample.origin.frames;
             match direction {
-                Direction::Forward => assert_eq!((before_last + 2, last + 1), (last, target)),
-                Direction::Reversed => assert_eq!((before_last, last), (last + 2, target + 1)),
+                Playback::Forward => assert_eq!((before_last + 2, last + 1), (last, target)),
+                Playback::Reversed => assert_eq!((before_last, last), (last + 2, target + 1)),
             }
             assert!(sample.mask.pixels().iter().filter(|&&[m]| m == 1.0).count() >= 1);
         }

@@ -11,7 +11,7 @@
 //! - [`generate_dataset`]: many clips written to disk in the clip layout of SPEC §3.
 //! - [`Scene::random`] and [`Scene::render`] for finer control; [`Scene`] can be built by hand.
 //!
-//! World axes: metres, z up, floor at z = 0 (cameras use OpenCV axes, see [`ivp_core::camera`]).
+//! World axes: metres, z up, floor at z = 0 (cameras use OpenCV axes, see [`ivp_core::geometry::camera`]).
 
 pub mod geometry;
 mod layout;

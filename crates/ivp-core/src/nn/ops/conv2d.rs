@@ -35,7 +35,7 @@
 
 mod narrow;
 
-use crate::ops::{contiguous_values, profile};
+use crate::nn::ops::{contiguous_values, profile};
 use std::cell::RefCell;
 use std::ops::Range;
 
@@ -801,7 +801,7 @@ impl CustomOp2 for Conv2dWeightGrad {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::ops::test_util::*;
+    use crate::nn::ops::test_util::*;
     use candle_core::{Device, Var};
 
     /// max |a - b| / max(1, max |b|)

@@ -27,7 +27,7 @@ use candle_nn::{Init, VarBuilder, VarMap};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
-use crate::ops::{conv2d, conv2d_relu, sample_bilinear, upsample_bilinear_to, upsample_concat};
+use crate::nn::ops::{conv2d, conv2d_relu, sample_bilinear, upsample_bilinear_to, upsample_concat};
 
 /// The encoder widths at width multiplier 1 (the paper's).
 pub const ENCODER_WIDTHS: [usize; 5] = [64, 128, 256, 256, 256];
@@ -386,7 +386,7 @@ mod tests {
     use candle_core::Device;
 
     fn inputs(b: usize, h: usize, w: usize, seed: u64) -> [Tensor; 6] {
-        let r = |c: usize, s: u64| crate::ops::test_util::random(&[b, c, h, w], seed * 10 + s);
+        let r = |c: usize, s: u64| crate::nn::ops::test_util::random(&[b, c, h, w], seed * 10 + s);
         let mask = r(1, 1).ge(0.6f32).unwrap().to_dtype(DType::F32).unwrap();
         let depth = (r(1, 2).abs().unwrap() * 10.0).unwrap();
         let keep = mask.affine(-1.0, 1.0).unwrap();
@@ -494,7 +494,7 @@ mod tests {
             let (net, _) = IvpNet::seeded(ModelConfig { variant, width_mult: 0.125 }, 5).unwrap();
             let mut t = inputs(1, 16, 16, 2);
             t[0] = (&t[0] * prior_scale).unwrap();
-            crate::ops::test_util::flat(&run(&net, &t).vectors.unwrap())
+            crate::nn::ops::test_util::flat(&run(&net, &t).vectors.unwrap())
         };
         assert_eq!(run_with_prior(Variant::NoTemporalPrior, 1.0), run_with_prior(Variant::NoTemporalPrior, 5.0));
         assert_ne!(run_with_prior(Variant::Full, 1.0), run_with_prior(Variant::Full, 5.0));
@@ -506,7 +506,7 @@ mod tests {
         let t = inputs(1, 21, 18, 3);
         let (a, b) = (run(&net, &t), run(&net.detached(), &t));
         assert!(a.frame.track_op() && !b.frame.track_op());
-        assert_eq!(crate::ops::test_util::flat(&a.frame), crate::ops::test_util::flat(&b.frame));
+        assert_eq!(crate::nn::ops::test_util::flat(&a.frame), crate::nn::ops::test_util::flat(&b.frame));
     }
 
     #[test]

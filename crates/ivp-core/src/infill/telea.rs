@@ -38,9 +38,10 @@ use std::cmp::{Ordering, Reverse};
 use std::collections::BinaryHeap;
 use std::time::Instant;
 
-use crate::image::to_u8;
-use crate::infill::{fill_new_regions, infilled_in_one_stage, InfillContext, InfillError, Infilled, Infiller};
-use crate::{PixelClass, RgbImage};
+use crate::geometry::image::to_u8;
+use crate::geometry::{PixelClass, RgbImage};
+use crate::infill::rules::fill_new_regions;
+use crate::infill::{infilled_in_one_stage, InfillContext, InfillError, Infilled, Infiller};
 
 /// The neighbourhood radius of the `telea` method, in pixels (as in the reference figures).
 pub const TELEA_RADIUS: usize = 5;
@@ -515,8 +516,8 @@ impl Infiller for Telea {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::infill::{classical_infiller, FrameView};
-    use crate::{HoleMask, Image, Intrinsics, Warp, WorldToCamera};
+    use crate::geometry::{FrameView, HoleMask, Image, Intrinsics, Warp, WorldToCamera};
+    use crate::infill::classical::classical_infiller;
 
     /// A deterministic pseudo-random sequence (no dependency for a test).
     fn random_sequence(seed: u64) -> impl FnMut() -> u32 {
@@ -748,7 +749,7 @@ mod tests {
         let image = Image::from_fn(w, h, |u, v| if known[v * w + u] { grey } else { [0.0; 3] });
         let depth = Image::from_fn(w, h, |u, v| [if known[v * w + u] { 2.0 } else { 0.0 }]);
         let holes = HoleMask::classify(w, h, &known);
-        assert_eq!(holes.count(crate::PixelClass::Disocclusion), 9);
+        assert_eq!(holes.count(PixelClass::Disocclusion), 9);
         let warped = Warp { image, depth, holes };
         let k = Intrinsics::new(10.0, 10.0, 6.0, 4.0);
         let pose = WorldToCamera(glam::DMat4::IDENTITY);

@@ -21,7 +21,9 @@ use std::sync::Mutex;
 use glam::DMat4;
 use rayon::prelude::*;
 
-use crate::{DepthMap, HoleMask, Image, Intrinsics, RgbImage};
+use crate::geometry::camera::Intrinsics;
+use crate::geometry::holes::HoleMask;
+use crate::geometry::image::{DepthMap, Image, RgbImage};
 
 /// A transformed point must be at least this far in front of the camera to be splatted.
 pub const MIN_Z: f64 = 1e-6;
@@ -62,7 +64,7 @@ pub struct Warp {
 }
 
 /// Warps `image` with its planar `depth` by `transform` (source camera to target camera, see
-/// [`crate::relative_pose`]). Source and target share the intrinsics `k` and the image size.
+/// [`crate::geometry::relative_pose`]). Source and target share the intrinsics `k` and the image size.
 pub fn warp_forward(image: &RgbImage, depth: &DepthMap, k: &Intrinsics, transform: &DMat4) -> Warp {
     assert!(image.same_size(depth), "image and depth differ in size");
     let src = image.pixels();
@@ -588,7 +590,7 @@ fn normalise<const C: usize>(acc: &mut [Block], values: &mut [[f32; C]], depth: 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::PixelClass;
+    use crate::geometry::holes::PixelClass;
     use glam::{DMat3, DVec3};
 
     fn k() -> Intrinsics {

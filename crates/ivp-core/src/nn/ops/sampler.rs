@@ -13,7 +13,7 @@
 //! order); the image gradient, a scatter-add, is parallel over (image, channel) planes, each plane
 //! accumulated sequentially in pixel order.
 
-use crate::ops::{contiguous_values, profile};
+use crate::nn::ops::{contiguous_values, profile};
 use candle_core::{bail, CpuStorage, CustomOp2, CustomOp3, DType, Layout, Result, Shape, Tensor};
 use rayon::prelude::*;
 
@@ -260,7 +260,7 @@ impl CustomOp3 for SamplerVectorGrad {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::ops::test_util::flat;
+    use crate::nn::ops::test_util::flat;
     use candle_core::{Device, Var};
 
     /// Deterministic values in [-1, 1) (candle cannot seed its CPU generator).

@@ -15,17 +15,14 @@
 //! Determinism: each pass is parallel over output rows, each written by one thread, and every
 //! output value is the sum of its taps in tap order: bit-identical for any number of threads.
 
-use crate::ops::{contiguous_values, profile};
+use crate::metrics::{SSIM_RADIUS, SSIM_SIGMA};
+use crate::nn::ops::{contiguous_values, profile};
 use candle_core::{bail, CpuStorage, CustomOp1, DType, Layout, Result, Shape, Tensor};
 use rayon::prelude::*;
 
-/// Radius of the SSIM window: 11 x 11 pixels.
-pub const SSIM_WINDOW_RADIUS: usize = 5;
-/// Standard deviation of the SSIM window, in pixels.
-pub const SSIM_SIGMA: f64 = 1.5;
 
 /// Number of taps of the 1-D kernel.
-const TAPS: usize = 2 * SSIM_WINDOW_RADIUS + 1;
+const TAPS: usize = 2 * SSIM_RADIUS + 1;
 
 /// Rows per rayon work item: one row is only ~11 W multiply-adds, too little to hand to a thread
 /// alone.
@@ -46,7 +43,7 @@ pub fn gaussian_blur(x: &Tensor) -> Result<Tensor> {
 /// rounded once (the reference computes it in f32: the two differ by an ulp at most). Symmetric:
 /// `g[k] == g[10 - k]` exactly, since (k - 5)^2 is.
 fn kernel() -> [f32; TAPS] {
-    let r = SSIM_WINDOW_RADIUS as f64;
+    let r = SSIM_RADIUS as f64;
     let raw: [f64; TAPS] = std::array::from_fn(|k| (-(k as f64 - r).powi(2) / (2.0 * SSIM_SIGMA * SSIM_SIGMA)).exp());
     let sum: f64 = raw.iter().sum();
     raw.map(|v| (v / sum) as f32)
@@ -55,8 +52,8 @@ fn kernel() -> [f32; TAPS] {
 /// The taps of output index `i` of an axis of length `n` that fall inside the frame: the tap range
 /// and the matching first source index. Tap k reads source `i + k - 5`.
 fn valid_taps(i: usize, n: usize) -> std::ops::Range<usize> {
-    let lo = SSIM_WINDOW_RADIUS.saturating_sub(i);
-    let hi = TAPS.min(n + SSIM_WINDOW_RADIUS - i);
+    let lo = SSIM_RADIUS.saturating_sub(i);
+    let hi = TAPS.min(n + SSIM_RADIUS - i);
     lo..hi.max(lo)
 }
 
@@ -67,12 +64,12 @@ fn blur_row(g: &[f32; TAPS], src: &[f32], out: &mut [f32]) {
     out.fill(0.0);
     for (k, &gk) in g.iter().enumerate() {
         // Tap k is inside the frame for x + k - 5 in [0, w): x in [5 - k, w + 5 - k) within [0, w).
-        let x0 = SSIM_WINDOW_RADIUS.saturating_sub(k);
-        let x1 = w.min((w + SSIM_WINDOW_RADIUS).saturating_sub(k));
+        let x0 = SSIM_RADIUS.saturating_sub(k);
+        let x1 = w.min((w + SSIM_RADIUS).saturating_sub(k));
         if x0 >= x1 {
             continue;
         }
-        let s0 = x0 + k - SSIM_WINDOW_RADIUS;
+        let s0 = x0 + k - SSIM_RADIUS;
         for (o, s) in out[x0..x1].iter_mut().zip(&src[s0..s0 + (x1 - x0)]) {
             *o += gk * s;
         }
@@ -98,7 +95,7 @@ fn blur(x: &[f32], planes: usize, h: usize, w: usize) -> Vec<f32> {
         let src = &tmp[plane * h * w..][..h * w];
         for k in valid_taps(y, h) {
             let gk = g[k];
-            let row = &src[(y + k - SSIM_WINDOW_RADIUS) * w..][..w];
+            let row = &src[(y + k - SSIM_RADIUS) * w..][..w];
             for (o, s) in dst.iter_mut().zip(row) {
                 *o += gk * s;
             }
@@ -135,7 +132,7 @@ impl CustomOp1 for GaussianBlur {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::ops::test_util::*;
+    use crate::nn::ops::test_util::*;
     use candle_core::{Device, Var};
 
     /// The 2-D window of the reference's `gauss_window(c)`: (C, 1, 11, 11).
@@ -166,7 +163,7 @@ mod tests {
         for (i, shape) in shapes.into_iter().enumerate() {
             let x = random(&shape, i as u64 + 1);
             let got = gaussian_blur(&x).unwrap();
-            let want = x.conv2d(&window(shape[1]), SSIM_WINDOW_RADIUS, 1, 1, shape[1]).unwrap();
+            let want = x.conv2d(&window(shape[1]), SSIM_RADIUS, 1, 1, shape[1]).unwrap();
             assert_eq!(got.dims(), want.dims());
             let (a, e) = (flat(&got), flat(&want));
             let err = a.iter().zip(&e).map(|(a, e)| (a - e).abs()).fold(0f32, f32::max);
@@ -187,7 +184,7 @@ mod tests {
         let (h, w) = (25, 31);
         let x = (Tensor::ones((1, 2, h, w), DType::F32, &Device::Cpu).unwrap() * 0.7).unwrap();
         let y = flat(&gaussian_blur(&x).unwrap());
-        let r = SSIM_WINDOW_RADIUS;
+        let r = SSIM_RADIUS;
         for (i, v) in y.iter().enumerate() {
             let (yy, xx) = (i / w % h, i % w);
             if (r..h - r).contains(&yy) && (r..w - r).contains(&xx) {

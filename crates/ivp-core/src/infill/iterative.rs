@@ -17,11 +17,10 @@ use std::time::{Duration, Instant};
 
 use rayon::prelude::*;
 
-use crate::infill::{
-    background_source, fill_new_regions, InfillContext, InfillError, Infilled, Infiller, NearestKnown, Pixel,
-};
-use crate::prior::{background_depth_threshold, prior_for_context};
-use crate::{DepthMap, HoleMask, Image, PixelClass, RgbImage, VectorField};
+use crate::geometry::{DepthMap, HoleMask, KnownRead, NearestKnown, Pixel, PixelClass, RgbImage, VectorField};
+use crate::infill::rules::{background_source, fill_new_regions};
+use crate::infill::InfillError;
+use crate::prior::background_depth_threshold;
 
 /// P of SPEC §6.5: two iterations that keep background vectors only, then the last.
 pub const DEFAULT_ITERATIONS: usize = 3;
@@ -68,84 +67,6 @@ impl<T: VectorPredictor + ?Sized> VectorPredictor for Arc<T> {
     fn predict(&self, prior: &VectorField, depth: &DepthMap, holes: &[bool]) -> Result<VectorField, InfillError> {
         (**self).predict(prior, depth, holes)
     }
-}
-
-// ---------------------------------------------------------------------------------------------
-// Known-pixels-only bilinear read, for any number of channels
-// ---------------------------------------------------------------------------------------------
-
-/// The corners of a known-pixels-only bilinear read (SPEC §6.3) and their weights, found once so
-/// that colour, depth and any other field can be read with the same weights.
-#[derive(Clone, Copy, Debug)]
-struct KnownRead {
-    /// Pixel index and bilinear weight of each corner taken: top-left, top-right, bottom-left,
-    /// bottom-right.
-    corners: [(usize, f32); 4],
-    count: usize,
-    total_weight: f32,
-}
-
-impl KnownRead {
-    /// The corners of the read at `(x, y)` that are inside the `width` x `height` frame, known and
-    /// of positive weight; `None` when there is none or `(x, y)` is not finite.
-    #[inline]
-    fn at(width: usize, height: usize, known: &[bool], x: f32, y: f32) -> Option<Self> {
-        if !(x.is_finite() && y.is_finite()) {
-            return None;
-        }
-        let (x0, y0) = (x.floor(), y.floor());
-        let (ax, ay) = (x - x0, y - y0);
-        let weights = [
-            (0.0, 0.0, (1.0 - ax) * (1.0 - ay)),
-            (1.0, 0.0, ax * (1.0 - ay)),
-            (0.0, 1.0, (1.0 - ax) * ay),
-            (1.0, 1.0, ax * ay),
-        ];
-        let (w, h) = (width as f32, height as f32);
-        let mut read = Self { corners: [(0, 0.0); 4], count: 0, total_weight: 0.0 };
-        for (dx, dy, weight) in weights {
-            let (cx, cy) = (x0 + dx, y0 + dy);
-            // Range checks on floats first: the casts below must never see a huge value.
-            if weight <= 0.0 || !(cx >= 0.0 && cx < w && cy >= 0.0 && cy < h) {
-                continue;
-            }
-            let i = cy as usize * width + cx as usize;
-            if !known[i] {
-                continue;
-            }
-            read.corners[read.count] = (i, weight);
-            read.count += 1;
-            read.total_weight += weight;
-        }
-        (read.total_weight > 0.0).then_some(read)
-    }
-
-    /// The weighted mean of `image` over the corners.
-    #[inline]
-    fn read<const C: usize>(&self, image: &Image<C>) -> [f32; C] {
-        let pixels = image.pixels();
-        self.read_by(|i| pixels[i])
-    }
-
-    /// [`Self::read`] of the values `value(pixel index)`.
-    #[inline]
-    fn read_by<const C: usize>(&self, value: impl Fn(usize) -> [f32; C]) -> [f32; C] {
-        let mut sum = [0f32; C];
-        for &(i, weight) in &self.corners[..self.count] {
-            for (s, c) in sum.iter_mut().zip(value(i)) {
-                *s += weight * c;
-            }
-        }
-        sum.map(|s| s / self.total_weight)
-    }
-}
-
-/// SPEC §6.3 at test time, for an image of any number of channels (colour, depth maps, vector
-/// fields): the bilinear read of `image` at `(x, y)` over the known in-frame corners, with
-/// the weights renormalised over them. `None` when no corner remains or `(x, y)` is not finite.
-pub fn sample_known<const C: usize>(image: &Image<C>, known: &[bool], x: f32, y: f32) -> Option<[f32; C]> {
-    assert_eq!(known.len(), image.len(), "known mask does not match the image");
-    KnownRead::at(image.width(), image.height(), known, x, y).map(|read| read.read(image))
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -420,70 +341,15 @@ fn last_outcome(state: &State, p: Pixel, vector: [f32; 2]) -> Outcome {
         .unwrap_or(Outcome::Fill)
 }
 
-// ---------------------------------------------------------------------------------------------
-// The infiller
-// ---------------------------------------------------------------------------------------------
-
-/// Infilling vector prediction as an [`Infiller`]: the temporal prior of the context
-/// ([`prior_for_context`], zeros without frame `n-2`), then [`infill_iteratively`] on the shared
-/// warp. Stages: `"prior"`, `"network"` (inside the predictor), `"infill"` (the rest).
-#[derive(Clone, Debug)]
-pub struct IterativeInfiller<P> {
-    name: String,
-    predictor: P,
-    iterations: usize,
-}
-
-impl<P: VectorPredictor> IterativeInfiller<P> {
-    /// `iterations` is P of SPEC §6.5 ([`DEFAULT_ITERATIONS`]); 0 makes every `infill` fail.
-    pub fn new(name: impl Into<String>, predictor: P, iterations: usize) -> Self {
-        Self { name: name.into(), predictor, iterations }
-    }
-
-    pub fn predictor(&self) -> &P {
-        &self.predictor
-    }
-
-    pub fn iterations(&self) -> usize {
-        self.iterations
-    }
-
-    /// [`infill_iteratively`] on the context's warp with the context's prior, returning the full
-    /// result (vectors, counts) rather than just the image, and the time of the prior.
-    pub fn infill_detailed(&self, ctx: &InfillContext<'_>) -> Result<(IterativeInfill, Duration), InfillError> {
-        let warped = ctx.warped;
-        let prior_start = Instant::now();
-        let prior =
-            prior_for_context(ctx).unwrap_or_else(|| VectorField::zeros(warped.image.width(), warped.image.height()));
-        let prior_time = prior_start.elapsed();
-        let result =
-            infill_iteratively(&self.predictor, &warped.image, &warped.depth, &warped.holes, &prior, self.iterations)?;
-        Ok((result, prior_time))
-    }
-}
-
-impl<P: VectorPredictor> Infiller for IterativeInfiller<P> {
-    fn name(&self) -> &str {
-        &self.name
-    }
-
-    fn infill(&self, ctx: &InfillContext<'_>) -> Result<Infilled, InfillError> {
-        let (result, prior_time) = self.infill_detailed(ctx)?;
-        Ok(Infilled {
-            image: result.image,
-            stages: vec![("prior", prior_time), ("network", result.predict_time), ("infill", result.other_time)],
-        })
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use std::sync::Mutex;
 
     use super::*;
-    use crate::image::is_valid_depth;
-    use crate::infill::{fill_disocclusions_background, sample_known_bilinear, test_scene, Direction, FrameView};
-    use crate::{relative_pose, warp_forward, Intrinsics, Warp, WorldToCamera};
+    use crate::geometry::image::is_valid_depth;
+    use crate::geometry::{relative_pose, sample_known, warp_forward, Direction, Image, Warp, WorldToCamera};
+    use crate::infill::rules::fill_disocclusions_background;
+    use crate::test_scene;
 
     /// A predictor made of a closure.
     struct FnPredictor<F>(F);
@@ -604,63 +470,21 @@ mod tests {
         [u as f32 / 128.0, v as f32 / 64.0, 0.5]
     }
 
-    /// The box scene of `infill.rs`: frame n at camera x = 0.2 warped to the target at x = 0.3.
+    /// The box scene of `test_scene`: frame n at camera x = 0.2 warped to the target at x = 0.3.
     /// The camera moves right, so the wall is uncovered on the right of the box.
     struct BoxScene {
-        k: Intrinsics,
-        before_last: (RgbImage, DepthMap, WorldToCamera),
-        last: (RgbImage, DepthMap, WorldToCamera),
         target: (RgbImage, DepthMap, WorldToCamera),
         warped: Warp,
-    }
-
-    fn view(frame: &(RgbImage, DepthMap, WorldToCamera)) -> FrameView<'_> {
-        FrameView { image: &frame.0, depth: &frame.1, pose: &frame.2 }
     }
 
     impl BoxScene {
         fn new() -> Self {
             let k = test_scene::intrinsics();
-            let before_last = test_scene::render(0.1);
             let last = test_scene::render(0.2);
             let target = test_scene::render(0.3);
             let warped = warp_forward(&last.0, &last.1, &k, &relative_pose(&last.2, &target.2));
-            Self { k, before_last, last, target, warped }
+            Self { target, warped }
         }
-
-        fn context(&self, with_before_last: bool) -> InfillContext<'_> {
-            InfillContext {
-                intrinsics: &self.k,
-                last: view(&self.last),
-                before_last: with_before_last.then(|| view(&self.before_last)),
-                target_pose: &self.target.2,
-                warped: &self.warped,
-                ground_truth: None,
-            }
-        }
-    }
-
-    #[test]
-    fn colour_and_depth_reads_take_the_same_corners() {
-        let (w, h) = (9, 6);
-        let image = Image::from_fn(w, h, |u, v| [(u * 7 + v) as f32 * 0.013, (u + 3 * v) as f32 * 0.1, 0.3]);
-        let depth = Image::from_fn(w, h, |u, v| [1.0 + (u * v) as f32 * 0.37]);
-        let known: Vec<bool> = (0..w * h).map(|i| i % 3 != 1 && i % 7 != 2).collect();
-        let mut state = 7u32;
-        let mut random = move || {
-            state = state.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
-            (state >> 8) as f32 / (1 << 24) as f32
-        };
-        for _ in 0..2000 {
-            let (x, y) = (random() * 11.0 - 1.0, random() * 8.0 - 1.0);
-            let rgb = sample_known(&image, &known, x, y);
-            // Depth reads with the same corners and weights: present exactly when colour is.
-            let z = sample_known(&depth, &known, x, y);
-            assert_eq!(z.is_some(), rgb.is_some());
-        }
-        // Exactly on a pixel: that pixel.
-        assert_eq!(sample_known(&depth, &vec![true; w * h], 3.0, 2.0), Some(depth.get(3, 2)));
-        assert_eq!(sample_known(&depth, &known, f32::NAN, 2.0), None);
     }
 
     #[test]
@@ -850,7 +674,7 @@ mod tests {
         );
         let [a, b] = out.vectors.get(4, 3);
         assert!((a - 1.2).abs() < 1e-6 && (b - 1.6).abs() < 1e-6, "{a}, {b}");
-        let want = sample_known_bilinear(&warp.image, &known, 4.0 + a, 3.0 + b).unwrap();
+        let want = sample_known(&warp.image, &known, 4.0 + a, 3.0 + b).unwrap();
         assert_eq!(out.image.get(4, 3), want);
         let mix = |c: usize| (0.8 * labelled(5, 5)[c] + 0.2 * labelled(6, 5)[c]) / 1.0;
         assert!((0..3).all(|c| (want[c] - mix(c)).abs() < 1e-6), "{want:?}");
@@ -1009,35 +833,6 @@ mod tests {
                 }
             }
         }
-    }
-
-    #[test]
-    fn infiller_reports_three_stages_and_uses_the_temporal_prior() {
-        let scene = BoxScene::new();
-        let warp = &scene.warped;
-        let method =
-            IterativeInfiller::new("ivp", Recording::new(to_nearest_known(Direction::Right)), DEFAULT_ITERATIONS);
-        assert_eq!((method.name(), method.iterations(), method.uses_ground_truth()), ("ivp", 3, false));
-        // Without frame n-2: zero prior.
-        let out = method.infill(&scene.context(false)).unwrap();
-        let names: Vec<&str> = out.stages.iter().map(|(name, _)| *name).collect();
-        assert_eq!(names, ["prior", "network", "infill"]);
-        assert_eq!(out.image, fill_of(warp));
-        assert_eq!(method.predictor().calls()[0].prior, zero_prior(warp));
-        // With it: the prior of `prior_for_context`, non-zero around the disocclusion.
-        let ctx = scene.context(true);
-        let out = method.infill(&ctx).unwrap();
-        assert_eq!(out.image, fill_of(warp));
-        let prior = prior_for_context(&ctx).unwrap();
-        assert!(prior.as_flat().iter().any(|&x| x != 0.0));
-        assert_eq!(method.predictor().calls()[1].prior, prior);
-        // As a trait object, behind a box.
-        let boxed: Box<dyn Infiller> = Box::new(IterativeInfiller::new(
-            "ivp-box",
-            Box::new(to_nearest_known(Direction::Right)) as Box<dyn VectorPredictor>,
-            2,
-        ));
-        assert_eq!(boxed.infill(&ctx).unwrap().image, fill_of(warp));
     }
 
     #[test]

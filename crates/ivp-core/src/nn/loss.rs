@@ -1,7 +1,7 @@
 //! The training losses of SPEC §6.4, on candle tensors and differentiable through candle's autograd:
 //! `L = 1 L_mse + 1 L_ssim + 0.001 L_smooth`, each a mean over the disocclusion pixels.
 //!
-//! The formulas are those of the PyTorch reference (`/work/shared/bench/torch_reference.py`:
+//! The formulas are those of the PyTorch reference (`shared/bench/torch_reference.py`:
 //! `masked_ssim_loss`, `smoothness` and the MSE of `step()`), value for value, with one deliberate
 //! difference: the SSIM term of a batch without a single disocclusion pixel is 0 (the reference
 //! gives 1 there, `1 - 0 / 1`). Every term is written as `sum(term * mask) / max(count, 1)`, so an
@@ -19,13 +19,15 @@
 //! Reductions are candle's f32 sums; the normalising counts are exact (summed in f64 on the host,
 //! the mask is data, not a parameter).
 
-use crate::ops::gaussian_blur;
 use candle_core::{bail, DType, Result, Tensor};
 
-/// SSIM's luminance constant C1 = (0.01 L)^2 for images in [0, 1].
-pub const SSIM_C1: f64 = 0.01 * 0.01;
-/// SSIM's contrast constant C2 = (0.03 L)^2.
-pub const SSIM_C2: f64 = 0.03 * 0.03;
+use crate::metrics::{ssim_c1, ssim_c2};
+use crate::nn::ops::gaussian_blur;
+
+/// SSIM's luminance constant for images in [0, 1]: the metric's, with `L = 1`.
+const SSIM_C1: f64 = ssim_c1(1.0);
+/// SSIM's contrast constant for images in [0, 1].
+const SSIM_C2: f64 = ssim_c2(1.0);
 /// Added under the square root of `va vb`, as in the reference; keeps the gradient finite at 0.
 const SQRT_EPS: f64 = 1e-12;
 /// Sharpness of the edge-aware weights `exp(-10 mean_c |grad f|)` of the smoothness term.
@@ -167,7 +169,7 @@ fn check_images(name: &str, prediction: &Tensor, truth: &Tensor, mask: &Tensor) 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::ops::test_util::{flat, random};
+    use crate::nn::ops::test_util::{flat, random};
     use candle_core::{Device, Var};
 
     /// Deterministic values in [0, 1).

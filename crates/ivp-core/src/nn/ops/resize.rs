@@ -11,7 +11,7 @@
 //! (image, channel) planes, each accumulated sequentially in pixel order. Results are bit-identical
 //! for any number of rayon threads.
 
-use crate::ops::{contiguous_values, profile};
+use crate::nn::ops::{contiguous_values, profile};
 use candle_core::{bail, CpuStorage, CustomOp1, CustomOp2, DType, Layout, Result, Shape, Tensor};
 use rayon::prelude::*;
 
@@ -315,7 +315,7 @@ impl CustomOp1 for BilinearGrad {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::ops::test_util::*;
+    use crate::nn::ops::test_util::*;
     use candle_core::{Device, Var};
 
     fn tensor(v: Vec<f32>, shape: &[usize]) -> Tensor {

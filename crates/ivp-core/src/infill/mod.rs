@@ -1,0 +1,97 @@
+//! Infillers: every method that turns a warped frame with holes into a full frame, behind one trait.
+//!
+//! Every method infills the disocclusions its own way; the new regions get one common rule
+//! ([`fill_new_regions`]) so that whole-frame metrics compare like with like (SPEC §4.1).
+//!
+//! Classical methods: `copy` (the last rendered frame), `warp` (the warped frame, disocclusions
+//! black), `fill` (each disocclusion copies its background neighbour), `oracle` (fictitious
+//! vectors measured on the ground truth, an upper bound for vector prediction) and `telea`
+//! (OpenCV's Telea inpainting of the disocclusions, radius 5, in `telea.rs`).
+//!
+//! Layer: imports `geometry` and `prior`, never `nn` (the network reaches infilling through the
+//! [`VectorPredictor`] trait, implemented in `inference`).
+
+pub mod classical;
+pub mod iterative;
+pub mod rules;
+pub mod telea;
+
+pub use classical::{classical_infiller, BackgroundFill, CopyLast, Oracle, WarpOnly, CLASSICAL_METHODS};
+pub use iterative::{infill_iteratively, IterativeInfill, VectorPredictor, DEFAULT_ITERATIONS, MAX_WALK_MAGNITUDE};
+pub use rules::{background_source, fill_disocclusions_background, fill_new_regions, new_region_source};
+pub use telea::{inpaint_telea, Telea, TELEA_RADIUS};
+
+use std::time::{Duration, Instant};
+
+use crate::geometry::{FrameView, Intrinsics, RgbImage, Warp, WorldToCamera};
+use crate::prior::{target_prior, TargetPrior};
+
+/// Everything a method may use to predict frame `t = n + 1`.
+#[derive(Clone, Copy, Debug)]
+pub struct InfillContext<'a> {
+    pub intrinsics: &'a Intrinsics,
+    /// Frame `n`, the last rendered frame.
+    pub last: FrameView<'a>,
+    /// Frame `n - 2`, for the temporal prior; `None` at the start of a sequence.
+    pub before_last: Option<FrameView<'a>>,
+    /// The pose of the frame to predict (known from the head tracker).
+    pub target_pose: &'a WorldToCamera,
+    /// Frame `n` warped into the target view (computed once, shared by all methods).
+    pub warped: &'a Warp,
+    /// The target frame itself; only methods that say they use ground truth may read it.
+    pub ground_truth: Option<&'a RgbImage>,
+}
+
+impl InfillContext<'_> {
+    /// The temporal prior of the target (SPEC §6.2), from frames `n - 2` and `n`; `None` at the
+    /// start of a sequence, where there is no frame `n - 2`.
+    pub fn temporal_prior(&self) -> Option<TargetPrior> {
+        let before_last = self.before_last.as_ref()?;
+        Some(target_prior(before_last, &self.last, self.target_pose, self.intrinsics, &self.warped.holes.known()))
+    }
+}
+
+/// The prediction of one frame and where the method spent its time.
+#[derive(Clone, Debug)]
+pub struct Infilled {
+    pub image: RgbImage,
+    /// Time by stage (`"prior"`, `"network"`, `"infill"`), in the order the stages ran.
+    pub stages: Vec<(&'static str, Duration)>,
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum InfillError {
+    #[error("method `{0}` needs the ground-truth target frame, which this context does not have")]
+    NeedsGroundTruth(&'static str),
+    #[error("{0}")]
+    Other(String),
+}
+
+/// A method that predicts a frame from its warped version.
+pub trait Infiller: Send + Sync {
+    /// The name used on the command line and in tables.
+    fn name(&self) -> &str;
+
+    /// True for methods that read the target frame: every output must say so.
+    fn uses_ground_truth(&self) -> bool {
+        false
+    }
+
+    /// False for methods that ignore [`InfillContext::warped`]: their time excludes the warp.
+    fn uses_warp(&self) -> bool {
+        true
+    }
+
+    fn infill(&self, ctx: &InfillContext<'_>) -> Result<Infilled, InfillError>;
+}
+
+/// Runs `f` and measures how long it took.
+pub(crate) fn timed<T>(f: impl FnOnce() -> T) -> (T, Duration) {
+    let start = Instant::now();
+    let out = f();
+    (out, start.elapsed())
+}
+
+pub(crate) fn infilled_in_one_stage(image: RgbImage, elapsed: Duration) -> Infilled {
+    Infilled { image, stages: vec![("infill", elapsed)] }
+}

@@ -1,0 +1,230 @@
+//! The filling rules every method shares: the common new-region rule (SPEC §4.1), the `fill`
+//! rule (the background neighbour of a disocclusion) and copies along integer vectors.
+
+use rayon::prelude::*;
+
+use crate::geometry::image::is_valid_depth;
+use crate::geometry::nearest::NearestKnown;
+use crate::geometry::{DepthMap, Direction, HoleMask, Pixel, PixelClass, RgbImage, VectorField};
+
+/// City-block distance (the pixels compared here always share a row or a column).
+#[inline]
+fn distance(a: Pixel, b: Pixel) -> usize {
+    a.0.abs_diff(b.0) + a.1.abs_diff(b.1)
+}
+
+/// Of two pixels on either side of `p`, the closer one; the first on a tie or when only it exists.
+fn closer(p: Pixel, first: Option<Pixel>, second: Option<Pixel>) -> Option<Pixel> {
+    match (first, second) {
+        (Some(a), Some(b)) => Some(if distance(b, p) < distance(a, p) { b } else { a }),
+        (a, b) => a.or(b),
+    }
+}
+
+/// The pixel a new-region pixel copies: the nearest known pixel along its row (tie: left), else
+/// along its column (tie: up).
+pub fn new_region_source(nearest: &NearestKnown, p: Pixel) -> Option<Pixel> {
+    let along_row = closer(p, nearest.beyond(p, Direction::Left), nearest.beyond(p, Direction::Right));
+    along_row.or_else(|| closer(p, nearest.beyond(p, Direction::Up), nearest.beyond(p, Direction::Down)))
+}
+
+/// The pixel the `fill` rule copies into hole pixel `p`: of the nearest known pixels in the four
+/// directions, the one with the largest warped depth (the background); ties go to the first of
+/// left, right, up, down. A known pixel without a valid depth loses to any with one.
+pub fn background_source(nearest: &NearestKnown, warped_depth: &DepthMap, p: Pixel) -> Option<Pixel> {
+    let depth_key = |(u, v): Pixel| {
+        let z = warped_depth.at(u, v);
+        if is_valid_depth(z) {
+            z
+        } else {
+            f32::NEG_INFINITY
+        }
+    };
+    let mut best: Option<(Pixel, f32)> = None;
+    for q in nearest.around(p).into_iter().flatten() {
+        let z = depth_key(q);
+        if best.is_none_or(|(_, best_z)| z > best_z) {
+            best = Some((q, z));
+        }
+    }
+    best.map(|(q, _)| q)
+}
+
+/// Copies into every pixel of class `class` the pixel `source` names for it (if any).
+///
+/// Sources must be known pixels: they are never written here, so the copies can be planned in
+/// parallel and applied in any order with the same result.
+fn copy_from_sources(
+    image: &mut RgbImage,
+    holes: &HoleMask,
+    class: PixelClass,
+    source: impl Fn(Pixel) -> Option<Pixel> + Sync,
+) {
+    let w = image.width();
+    let copies: Vec<(usize, usize)> = (0..image.height())
+        .into_par_iter()
+        .flat_map_iter(|v| {
+            let source = &source;
+            (0..w).filter(move |&u| holes.class(u, v) == class).filter_map(move |u| {
+                let (su, sv) = source((u, v))?;
+                debug_assert!(holes.is_known(su, sv), "source ({su}, {sv}) is a hole");
+                Some((v * w + u, sv * w + su))
+            })
+        })
+        .collect();
+    let pixels = image.pixels_mut();
+    for (dst, src) in copies {
+        pixels[dst] = pixels[src];
+    }
+}
+
+fn assert_mask_matches(image: &RgbImage, holes: &HoleMask) {
+    assert!(
+        image.width() == holes.width() && image.height() == holes.height(),
+        "image {}x{} and hole mask {}x{} differ in size",
+        image.width(),
+        image.height(),
+        holes.width(),
+        holes.height()
+    );
+}
+
+// ---------------------------------------------------------------------------------------------
+// Filling rules
+// ---------------------------------------------------------------------------------------------
+
+/// The common new-region rule of SPEC §4.1: every new-region pixel copies the nearest known pixel
+/// along its row (tie: left), else along its column (tie: up), else stays as it is. Reads known
+/// pixels only, so it can run before or after the disocclusions are infilled.
+pub fn fill_new_regions(image: &mut RgbImage, holes: &HoleMask) {
+    assert_mask_matches(image, holes);
+    let nearest = NearestKnown::new(holes.width(), holes.height(), &holes.known());
+    copy_from_sources(image, holes, PixelClass::NewRegion, |p| new_region_source(&nearest, p));
+}
+
+/// The `fill` rule: every disocclusion pixel copies, of the nearest known pixels in the four
+/// directions, the one with the largest warped depth (a disocclusion is background uncovered
+/// behind a foreground object, so the farther side is the likelier match).
+pub fn fill_disocclusions_background(image: &mut RgbImage, warped_depth: &DepthMap, holes: &HoleMask) {
+    assert_mask_matches(image, holes);
+    assert!(image.same_size(warped_depth), "image and warped depth differ in size");
+    let nearest = NearestKnown::new(holes.width(), holes.height(), &holes.known());
+    copy_from_sources(image, holes, PixelClass::Disocclusion, |p| background_source(&nearest, warped_depth, p));
+}
+
+/// Copies `source` at `p + vector` into every pixel `p` whose (integer) vector is not zero.
+/// The targets must be known pixels of `source` inside the frame (fictitious vectors are).
+pub(crate) fn copy_along_vectors(image: &mut RgbImage, source: &RgbImage, vectors: &VectorField) {
+    let w = image.width();
+    image.pixels_mut().par_chunks_mut(w.max(1)).enumerate().for_each(|(v, row)| {
+        for (u, out) in row.iter_mut().enumerate() {
+            let [a, b] = vectors.get(u, v);
+            if a != 0.0 || b != 0.0 {
+                let su = (u as f32 + a).round() as usize;
+                let sv = (v as f32 + b).round() as usize;
+                *out = source.get(su, sv);
+            }
+        }
+    });
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geometry::Image;
+    use crate::test_scene::{classes_from_rows, labelled, BLUE, GREEN, RED};
+
+    #[test]
+    fn new_regions_copy_the_nearest_known_pixel_in_the_row_then_the_column() {
+        let holes = classes_from_rows(&[
+            "KNNKNNK", // (1,0): left at 1 beats right at 2; (2,0): right at 1; (4,0)/(5,0) likewise
+            "KNKNNNN", // (1,1): tie between 0 and 2 -> left; (3..6,1): only the left one at 2
+            "NNNNNNN", // nothing in the row: (0,2) column: up (0,1) at 1, down (0,4) at 2 -> up
+            "NNNNNNN", // (0,3): up at 2, down at 1 -> down; (2,3): up (2,1) at 2, down (2,4) at 1 -> down
+            "KNKNNNN", // column 4 has no known pixel: (4,2), (4,3) unchanged; (6,3): only up (6,0)
+        ]);
+        let original = labelled(7, 5);
+        let mut image = original.clone();
+        fill_new_regions(&mut image, &holes);
+        let o = |u, v| original.get(u, v);
+        let expected = [
+            ((1, 0), o(0, 0)),
+            ((2, 0), o(3, 0)),
+            ((4, 0), o(3, 0)),
+            ((5, 0), o(6, 0)),
+            ((1, 1), o(0, 1)),
+            ((5, 1), o(2, 1)),
+            ((0, 2), o(0, 1)),
+            ((2, 2), o(2, 1)),
+            ((0, 3), o(0, 4)),
+            ((2, 3), o(2, 4)),
+            ((3, 2), o(3, 0)),
+            ((4, 2), o(4, 2)),
+            ((4, 3), o(4, 3)),
+            ((6, 3), o(6, 0)),
+        ];
+        for ((u, v), want) in expected {
+            assert_eq!(image.get(u, v), want, "({u}, {v})");
+        }
+        // Known pixels are never touched.
+        for (i, class) in holes.classes().iter().enumerate() {
+            if *class == PixelClass::Known {
+                assert_eq!(image.pixels()[i], original.pixels()[i]);
+            }
+        }
+    }
+
+    #[test]
+    fn new_region_rule_leaves_disocclusions_alone() {
+        let holes = classes_from_rows(&["KKK", "KDK", "KKK"]);
+        let mut image = Image::filled(3, 3, RED);
+        image.set(1, 1, BLUE);
+        fill_new_regions(&mut image, &holes);
+        assert_eq!(image.get(1, 1), BLUE);
+    }
+
+    #[test]
+    fn fill_copies_the_farthest_of_the_four_nearest_known_pixels() {
+        let holes = classes_from_rows(&["KKKKK", "KKKKK", "KKDDK", "KKKKK", "KKKKK"]);
+        // (2,2): left (1,2) near/red, right (4,2) far/blue, up and down middle/green.
+        let mut depth = Image::filled(5, 5, [5.0]);
+        depth.set(1, 2, [1.0]);
+        depth.set(4, 2, [10.0]);
+        let mut image = Image::filled(5, 5, GREEN);
+        image.set(1, 2, RED);
+        image.set(4, 2, BLUE);
+        for (u, v) in [(2, 2), (3, 2)] {
+            image.set(u, v, [0.0; 3]);
+            depth.set(u, v, [0.0]);
+        }
+        let mut filled = image.clone();
+        fill_disocclusions_background(&mut filled, &depth, &holes);
+        assert_eq!(filled.get(2, 2), BLUE);
+        assert_eq!(filled.get(3, 2), BLUE);
+
+        // Ties: left and right equally far -> left; up and down only -> up.
+        depth.set(1, 2, [10.0]);
+        depth.set(2, 1, [10.0]);
+        depth.set(2, 3, [10.0]);
+        image.set(2, 1, [0.3; 3]);
+        image.set(2, 3, [0.7; 3]);
+        let mut filled = image.clone();
+        fill_disocclusions_background(&mut filled, &depth, &holes);
+        assert_eq!(filled.get(2, 2), RED);
+        depth.set(1, 2, [1.0]);
+        depth.set(4, 2, [1.0]);
+        let mut filled = image.clone();
+        fill_disocclusions_background(&mut filled, &depth, &holes);
+        assert_eq!(filled.get(2, 2), [0.3; 3]);
+    }
+
+    #[test]
+    fn fill_prefers_a_valid_depth_over_an_invalid_one() {
+        let holes = classes_from_rows(&["KKK", "KDK", "KKK"]);
+        let depth = Image::from_fn(3, 3, |u, _| [if u == 0 { f32::NAN } else { 0.5 }]);
+        let mut image = labelled(3, 3);
+        fill_disocclusions_background(&mut image, &depth, &holes);
+        // Left has NaN depth, right (2,1) valid: right wins.
+        assert_eq!(image.get(1, 1), labelled(3, 3).get(2, 1));
+    }
+}
