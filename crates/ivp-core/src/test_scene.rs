@@ -38,7 +38,6 @@ pub fn render(camera_x: f64) -> (RgbImage, DepthMap, WorldToCamera) {
     (image, depth, pose)
 }
 
-
 pub const RED: [f32; 3] = [1.0, 0.0, 0.0];
 pub const GREEN: [f32; 3] = [0.0, 1.0, 0.0];
 pub const BLUE: [f32; 3] = [0.0, 0.0, 1.0];

@@ -5,14 +5,18 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
-use anyhow::{bail, Context, Result};
-use indicatif::{ProgressBar, ProgressStyle};
+use anyhow::{bail, ensure, Context, Result};
+use indicatif::ProgressBar;
 use ivp_core::geometry::FrameView;
-use ivp_core::infill::{InfillContext, Infiller};
+use ivp_core::inference::ModelInfiller;
+use ivp_core::infill::{classical_infiller, InfillContext, Infiller, CLASSICAL_METHODS};
 use ivp_core::metrics::{score_frame, tc_track_variances, FrameScores, TcSequence};
 use ivp_core::{relative_pose, warp_forward, RgbImage, Warp};
 use ivp_data::{find_clips, read_rgb, Clip, Frame};
 use serde::Serialize;
+
+use crate::checkpoint::load_model;
+use crate::progress::progress_bar;
 
 /// The targets of a 12-frame clip (SPEC §5).
 pub const DEFAULT_TARGETS: [usize; 3] = [6, 8, 10];
@@ -32,6 +36,81 @@ impl Method {
             Method::External { name, .. } => name,
         }
     }
+}
+
+/// The methods of an evaluation as the command line names them.
+pub struct MethodSpecs<'a> {
+    /// Classical methods and `models` names, in the order of the table.
+    pub names: &'a [String],
+    /// Trained models: `NAME=FILE`, or `FILE` scored as `ivp`.
+    pub models: &'a [String],
+    /// Iterations of the models' test-time infilling (SPEC §6.5).
+    pub iterations: usize,
+    /// Frames predicted by another tool: `NAME=DIR`.
+    pub externals: &'a [String],
+}
+
+/// The methods `specs` names: those of `names` in their order, then the models `names` leaves
+/// out, then the external methods. Two methods of the same name would make the table ambiguous.
+pub fn build_methods(specs: &MethodSpecs<'_>) -> Result<Vec<Method>> {
+    let mut models = load_models(specs.models, specs.iterations)?;
+    let mut methods = Vec::new();
+    for name in specs.names.iter().map(|m| m.trim()).filter(|m| !m.is_empty()) {
+        methods.push(named_method(name, &mut models)?);
+    }
+    methods.extend(models.into_iter().map(|m| Method::Internal(Box::new(m))));
+    for spec in specs.externals {
+        methods.push(external_method(spec)?);
+    }
+    ensure_unique_names(&methods)?;
+    Ok(methods)
+}
+
+fn load_models(specs: &[String], iterations: usize) -> Result<Vec<ModelInfiller>> {
+    specs
+        .iter()
+        .map(|spec| {
+            let (name, file) = match spec.split_once('=') {
+                Some((name, file)) => (name.to_string(), PathBuf::from(file)),
+                None => ("ivp".to_string(), PathBuf::from(spec)),
+            };
+            ensure!(iterations > 0, "--iterations must be at least 1");
+            let (net, _) = load_model(&file)?;
+            Ok(ModelInfiller::new(name, net, iterations))
+        })
+        .collect()
+}
+
+/// A classical method, or the model of that name (taken out of `models`).
+fn named_method(name: &str, models: &mut Vec<ModelInfiller>) -> Result<Method> {
+    if let Some(m) = classical_infiller(name) {
+        return Ok(Method::Internal(m));
+    }
+    if let Some(i) = models.iter().position(|m| m.name() == name) {
+        return Ok(Method::Internal(Box::new(models.remove(i))));
+    }
+    if name == "ivp" {
+        bail!("method `ivp` needs a trained model: add --model FILE");
+    }
+    bail!("unknown method `{name}`: choose among {} or a --model name", CLASSICAL_METHODS.join(", "))
+}
+
+fn external_method(spec: &str) -> Result<Method> {
+    let Some((name, dir)) = spec.split_once('=') else {
+        bail!("--external takes NAME=DIR, got `{spec}`");
+    };
+    let dir = PathBuf::from(dir);
+    ensure!(dir.is_dir(), "--external {name}: {} is not a folder", dir.display());
+    Ok(Method::External { name: name.to_string(), dir })
+}
+
+fn ensure_unique_names(methods: &[Method]) -> Result<()> {
+    let mut names: Vec<&str> = methods.iter().map(|m| m.name()).collect();
+    names.sort_unstable();
+    if let Some(w) = names.windows(2).find(|w| w[0] == w[1]) {
+        bail!("method `{}` is given twice", w[0]);
+    }
+    Ok(())
 }
 
 /// The scores of one method over a dataset.
@@ -195,16 +274,14 @@ pub fn evaluate(data: &Path, targets: &[usize], methods: &[Method], progress: bo
     Ok(EvalReport { clips: names, targets: sorted_targets, methods: reports })
 }
 
-pub fn progress_bar(enabled: bool, len: u64, what: &str) -> ProgressBar {
-    if !enabled {
-        return ProgressBar::hidden();
+/// Writes `report` as JSON to `path` (atomically), creating its folder.
+pub fn write_json(path: &Path, report: &EvalReport) -> Result<()> {
+    let json = serde_json::to_string_pretty(report)?;
+    if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
     }
-    let bar = ProgressBar::new(len);
-    bar.set_style(
-        ProgressStyle::with_template(&format!("{what} {{bar:30}} {{pos}}/{{len}} {{msg}} [{{elapsed}} < {{eta}}]"))
-            .expect("valid template"),
-    );
-    bar
+    ivp_data::write_atomically(path, json.as_bytes())?;
+    Ok(())
 }
 
 /// What one target of one clip leaves for TC.
@@ -369,4 +446,40 @@ pub fn format_table(report: &EvalReport) -> String {
         m.tc_tracks
     ));
     out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn names(v: &[&str]) -> Vec<String> {
+        v.iter().map(|s| s.to_string()).collect()
+    }
+
+    fn build(methods: &[&str], externals: &[String]) -> Result<Vec<Method>> {
+        build_methods(&MethodSpecs { names: &names(methods), models: &[], iterations: 1, externals })
+    }
+
+    fn error(methods: &[&str], externals: &[String]) -> String {
+        build(methods, externals).err().expect("an error").to_string()
+    }
+
+    #[test]
+    fn methods_keep_their_order_and_externals_come_last() {
+        let dir = tempfile::tempdir().unwrap();
+        let external = vec![format!("mine={}", dir.path().display())];
+        let methods = build(&["fill", " copy ", ""], &external).unwrap();
+        let order: Vec<&str> = methods.iter().map(Method::name).collect();
+        assert_eq!(order, ["fill", "copy", "mine"]);
+    }
+
+    #[test]
+    fn bad_method_names_are_explained() {
+        assert!(error(&["ivp"], &[]).contains("add --model FILE"));
+        assert!(error(&["foo"], &[]).starts_with("unknown method `foo`"));
+        assert_eq!(error(&["copy", "copy"], &[]), "method `copy` is given twice");
+        assert_eq!(error(&[], &names(&["bad"])), "--external takes NAME=DIR, got `bad`");
+        let dir = tempfile::tempdir().unwrap();
+        assert_eq!(error(&["copy"], &[format!("copy={}", dir.path().display())]), "method `copy` is given twice");
+    }
 }

@@ -4,8 +4,9 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context, Result};
-use ivp_core::inference::{ModelInfiller, ModelPrediction};
+use ivp_core::geometry::image::to_u8;
 use ivp_core::geometry::FrameView;
+use ivp_core::inference::{ModelInfiller, ModelPrediction};
 use ivp_core::infill::InfillContext;
 use ivp_core::{RgbImage, Warp};
 use ivp_data::{write_gray_png, write_rgb_png, Clip, Frame};
@@ -173,13 +174,7 @@ fn write_gif(path: &Path, frames: &[RgbImage]) -> Result<()> {
         let mut encoder = GifEncoder::new_with_speed(&mut bytes, 10);
         encoder.set_repeat(Repeat::Infinite)?;
         for f in frames {
-            let rgba: Vec<u8> = f
-                .pixels()
-                .iter()
-                .flat_map(|p| {
-                    [ivp_core::geometry::image::to_u8(p[0]), ivp_core::geometry::image::to_u8(p[1]), ivp_core::geometry::image::to_u8(p[2]), 255]
-                })
-                .collect();
+            let rgba: Vec<u8> = f.pixels().iter().flat_map(|p| [to_u8(p[0]), to_u8(p[1]), to_u8(p[2]), 255]).collect();
             let buffer =
                 image::RgbaImage::from_raw(f.width() as u32, f.height() as u32, rgba).expect("4 bytes a pixel");
             let delay = image::Delay::from_numer_denom_ms(100, 3);

@@ -1,11 +1,33 @@
 //! Evaluation, training, benchmarks and export behind the `ivp` command-line program.
+//!
+//! - `cli`: the `ivp` command line (clap arguments and a thin `run_*` per subcommand).
+//! - `eval`: the evaluation harness: methods built from their names, scored on every target of
+//!   every clip (SPEC §7), the table and the JSON report.
+//! - `export_warps`: warped frames on disk (`ivp warp`), and every evaluation target exported for
+//!   other tools.
+//! - `check`: which reading of a clip's poses, axes and depth units explains its images.
+//! - `train`: the training configuration, the loop (validation, checkpoints, resume) and one step.
+//! - `metrics_csv`: the rows of a run's `metrics.csv`, written and read back on resume.
+//! - `validation`: the fixed validation crops of a run, scored the way `eval` scores.
+//! - `checkpoint`: model files and checkpoints, saved and strictly loaded.
+//! - `demo`: `ivp demo`'s decisions: reuse or train, which clips to score on, which methods.
+//! - `infer`: a trained model on one target (`ivp infer`) or on every other frame (`ivp upsample`).
+//! - `bench`: one training step or one inference timed on random inputs (`ivp bench`).
+//! - `plot`: `loss.png` of a run.
+//! - `sheet`: labelled contact sheets, flow colours, and the sheet of a training sample.
+//! - `progress`: the progress bar every long-running command shows.
 
 pub mod bench;
 pub mod check;
 pub mod checkpoint;
+pub mod cli;
+pub mod demo;
 pub mod eval;
+pub mod export_warps;
 pub mod infer;
+pub mod metrics_csv;
 pub mod plot;
+pub mod progress;
 pub mod sheet;
 pub mod train;
 pub mod validation;

@@ -7,8 +7,8 @@ use std::path::Path;
 use anyhow::Result;
 use ivp_core::RgbImage;
 
+use crate::metrics_csv::MetricsRow;
 use crate::sheet::draw_text_in;
-use crate::train::MetricsRow;
 
 const WIDTH: usize = 900;
 const PANEL_HEIGHT: usize = 300;

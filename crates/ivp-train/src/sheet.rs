@@ -2,6 +2,9 @@
 //! samples, vectors and predictions.
 
 use ivp_core::{DepthMap, Image, RgbImage, VectorField};
+use ivp_data::samples::Sample;
+
+use crate::validation::hole_mask;
 
 const GLYPH: usize = 8;
 /// Captions are drawn with the 8x8 bitmap font scaled by this factor.
@@ -43,6 +46,26 @@ impl Sheet {
         }
         sheet
     }
+}
+
+/// A training sample as `ivp show-sample` draws it: the frames and warps it comes from, the
+/// ground truth, its holes, its temporal prior and the warped depth, four to a row.
+pub fn sample_sheet(sample: &Sample) -> Sheet {
+    let size = sample.size();
+    // 255 on disocclusions, 128 on new regions, 0 on known pixels.
+    let holes = hole_mask(sample).to_gray8();
+    let frames = &sample.origin.frames;
+    let (n2, n, t) = (frames.before_last, frames.last, frames.target);
+    let mut sheet = Sheet::new(4);
+    sheet
+        .add(format!("f{n2}->{n} warped"), sample.last_warped.clone())
+        .add(format!("f{n} (last)"), sample.last.clone())
+        .add(format!("f{n}->{t} warped"), sample.warped.clone())
+        .add(format!("f{t} truth"), sample.truth.clone())
+        .add("holes", gray_to_rgb(size, size, &holes))
+        .add("prior", vectors_to_rgb(&sample.prior, None))
+        .add(format!("depth {t}"), depth_to_rgb(&sample.warped_depth));
+    sheet
 }
 
 /// Draws `text` at `(x, y)` in white, clipped to `max_width` pixels.

@@ -25,7 +25,13 @@ use ivp_data::SceneParams;
 use serde::{Deserialize, Serialize};
 
 use crate::checkpoint::{load_checkpoint, restore_parameters, save_checkpoint, save_model};
+use crate::metrics_csv::{LossWindow, MetricsLog, MetricsRow};
+use crate::plot::write_loss_curve;
+use crate::progress::progress_bar;
 use crate::validation::{ValidationScores, ValidationSet};
+
+/// What [`training_step`] returns; it lives with the rows of `metrics.csv` that hold its means.
+pub use crate::metrics_csv::LossValues;
 
 /// Everything that defines a training run. The defaults are the 30-minute recipe for 2 cores.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -168,17 +174,6 @@ impl TrainConfig {
     }
 }
 
-/// The loss terms of one step, as numbers.
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
-pub struct LossValues {
-    pub mse: f32,
-    pub ssim: f32,
-    pub smooth: f32,
-    /// The guide term (0 once it has faded), already weighted.
-    pub guide: f32,
-    pub total: f32,
-}
-
 /// How a run is watched and stopped; nothing here changes its results.
 #[derive(Clone, Debug, Default)]
 pub struct RunOptions {
@@ -254,7 +249,7 @@ pub fn train(config: &TrainConfig, run_dir: &Path, options: &RunOptions) -> Resu
     )?;
 
     let weights = LossWeights::default();
-    let bar = crate::eval::progress_bar(options.progress, config.steps, "training");
+    let bar = progress_bar(options.progress, config.steps, "training");
     bar.set_position(first_step);
     let start = Instant::now();
     let elapsed = || elapsed_before + start.elapsed();
@@ -310,7 +305,7 @@ pub fn train(config: &TrainConfig, run_dir: &Path, options: &RunOptions) -> Resu
     }
     bar.finish_and_clear();
     drop(stream);
-    crate::plot::write_loss_curve(&run_dir.join("loss.png"), log.rows())?;
+    write_loss_curve(&run_dir.join("loss.png"), log.rows())?;
     let model_path = (!stopped_early).then(|| run_dir.join("model.safetensors"));
     if let Some(path) = &model_path {
         save_model(path, &varmap, &model_config, Some(step))?;
@@ -433,130 +428,6 @@ fn prune_checkpoints(dir: &Path, keep: usize) -> Result<()> {
         std::fs::remove_file(old).with_context(|| format!("cannot delete old checkpoint {}", old.display()))?;
     }
     Ok(())
-}
-
-/// Training losses accumulated between two log rows.
-#[derive(Default)]
-struct LossWindow {
-    sum: [f64; 5],
-    count: u32,
-}
-
-impl LossWindow {
-    fn add(&mut self, l: &LossValues) {
-        for (s, v) in self.sum.iter_mut().zip([l.mse, l.ssim, l.smooth, l.guide, l.total]) {
-            *s += v as f64;
-        }
-        self.count += 1;
-    }
-
-    /// The mean since the last call.
-    fn take(&mut self) -> LossValues {
-        let n = self.count.max(1) as f64;
-        let m = self.sum.map(|s| (s / n) as f32);
-        *self = Self::default();
-        LossValues { mse: m[0], ssim: m[1], smooth: m[2], guide: m[3], total: m[4] }
-    }
-}
-
-/// One row of `metrics.csv`.
-#[derive(Clone, Debug)]
-pub struct MetricsRow {
-    pub step: u64,
-    pub loss: LossValues,
-    pub validation: Option<ValidationScores>,
-    pub fill: ValidationScores,
-    pub elapsed: Duration,
-}
-
-const METRICS_HEADER: &str = "step,mse,ssim,smooth,guide,total,val_d_mse,val_d_ssim,fill_d_mse,fill_d_ssim,elapsed_s";
-
-/// `metrics.csv`, rewritten atomically after every row so that it is always complete.
-struct MetricsLog {
-    path: PathBuf,
-    rows: Vec<MetricsRow>,
-}
-
-impl MetricsLog {
-    fn new(path: PathBuf) -> Self {
-        Self { path, rows: Vec::new() }
-    }
-
-    /// The log of a run resumed at `step`: rows after it are dropped (they will be run again).
-    fn resume(path: PathBuf, step: u64) -> Result<Self> {
-        let mut rows = Vec::new();
-        if path.exists() {
-            let text = std::fs::read_to_string(&path).with_context(|| format!("cannot read {}", path.display()))?;
-            for (i, line) in text.lines().enumerate().skip(1) {
-                let row =
-                    parse_row(line).with_context(|| format!("{}: line {}: malformed row", path.display(), i + 1))?;
-                if row.step <= step {
-                    rows.push(row);
-                }
-            }
-        }
-        Ok(Self { path, rows })
-    }
-
-    fn push(&mut self, row: MetricsRow) {
-        self.rows.push(row);
-    }
-
-    fn rows(&self) -> &[MetricsRow] {
-        &self.rows
-    }
-
-    fn last_elapsed(&self) -> Duration {
-        self.rows.last().map_or(Duration::ZERO, |r| r.elapsed)
-    }
-
-    fn save(&self) -> Result<()> {
-        let mut text = String::from(METRICS_HEADER);
-        text.push('\n');
-        for r in &self.rows {
-            let v = r
-                .validation
-                .map_or((String::new(), String::new()), |v| (format!("{:.3}", v.d_mse), format!("{:.5}", v.d_ssim)));
-            text.push_str(&format!(
-                "{},{:.6},{:.6},{:.6},{:.6},{:.6},{},{},{:.3},{:.5},{:.1}\n",
-                r.step,
-                r.loss.mse,
-                r.loss.ssim,
-                r.loss.smooth,
-                r.loss.guide,
-                r.loss.total,
-                v.0,
-                v.1,
-                r.fill.d_mse,
-                r.fill.d_ssim,
-                r.elapsed.as_secs_f64()
-            ));
-        }
-        ivp_data::write_atomically(&self.path, text.as_bytes())?;
-        Ok(())
-    }
-}
-
-fn parse_row(line: &str) -> Result<MetricsRow> {
-    let f: Vec<&str> = line.split(',').collect();
-    ensure!(f.len() == 11, "{} fields, expected 11", f.len());
-    let num =
-        |i: usize| -> Result<f64> { f[i].parse::<f64>().with_context(|| format!("field {} is `{}`", i + 1, f[i])) };
-    let validation = (!f[6].is_empty())
-        .then(|| -> Result<ValidationScores> { Ok(ValidationScores { d_mse: num(6)?, d_ssim: num(7)? }) });
-    Ok(MetricsRow {
-        step: f[0].parse().with_context(|| format!("step `{}`", f[0]))?,
-        loss: LossValues {
-            mse: num(1)? as f32,
-            ssim: num(2)? as f32,
-            smooth: num(3)? as f32,
-            guide: num(4)? as f32,
-            total: num(5)? as f32,
-        },
-        validation: validation.transpose()?,
-        fill: ValidationScores { d_mse: num(8)?, d_ssim: num(9)? },
-        elapsed: Duration::from_secs_f64(num(10)?.max(0.0)),
-    })
 }
 
 /// The variables of a network, for callers that train outside [`train`] (tests, benchmarks).

@@ -2,8 +2,8 @@
 
 use crate::geometry::PixelClass;
 use crate::infill::rules::{copy_along_vectors, fill_disocclusions_background, fill_new_regions};
-use crate::infill::{infilled_in_one_stage, timed, InfillContext, InfillError, Infilled, Infiller};
 use crate::infill::telea::Telea;
+use crate::infill::{infilled_in_one_stage, timed, InfillContext, InfillError, Infilled, Infiller};
 use crate::prior::estimate_fictitious_vectors_on;
 
 /// The names of the classical methods, as on the command line.
@@ -130,13 +130,13 @@ impl Infiller for Oracle {
     }
 }
 
-/// A box in front of a wall seen by a camera that slides along x: every frame is rendered
-/// analytically, so warps of it can be checked against the true frames.
-
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::geometry::{relative_pose, warp_forward, DepthMap, FrameView, HoleMask, Image, Intrinsics, Pixel, RgbImage, Warp, WorldToCamera};
+    use crate::geometry::{
+        relative_pose, warp_forward, DepthMap, FrameView, HoleMask, Image, Intrinsics, Pixel, RgbImage, Warp,
+        WorldToCamera,
+    };
     use crate::test_scene::{self, assert_all_finite, labelled, RED};
 
     /// Frame n at camera x = 0.2 warped to the target at x = 0.3, with the target's truth.

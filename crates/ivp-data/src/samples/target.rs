@@ -80,7 +80,8 @@ impl PreparedTarget {
             return None;
         }
         let before_last = clip.view(frames.before_last);
-        let TargetPrior { prior, warp_to_last } = target_prior(&before_last, &last, target_pose, k, &warped.holes.known());
+        let TargetPrior { prior, warp_to_last } =
+            target_prior(&before_last, &last, target_pose, k, &warped.holes.known());
         Some(Self { frames, warped, prior, last_warped: warp_to_last.image, disocclusions })
     }
 }

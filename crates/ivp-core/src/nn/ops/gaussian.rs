@@ -20,7 +20,6 @@ use crate::nn::ops::{contiguous_values, profile};
 use candle_core::{bail, CpuStorage, CustomOp1, DType, Layout, Result, Shape, Tensor};
 use rayon::prelude::*;
 
-
 /// Number of taps of the 1-D kernel.
 const TAPS: usize = 2 * SSIM_RADIUS + 1;
 

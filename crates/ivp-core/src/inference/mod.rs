@@ -4,6 +4,10 @@
 //!
 //! Layer: the top of the crate; the one place where `nn` meets `infill` and `prior`.
 
+pub mod tiles;
+
+pub use tiles::{plan_tiles, Tile, TileShape, TiledPredictor};
+
 use std::time::{Duration, Instant};
 
 use candle_core::{Device, Tensor};
@@ -39,6 +43,8 @@ pub struct ModelPrediction {
     pub vectors: Option<VectorField>,
     /// Time by stage: `"prior"`, `"network"`, `"infill"`.
     pub stages: Vec<(&'static str, Duration)>,
+    /// Tiles the network ran on, over every iteration (0 when it ran densely).
+    pub tiles: usize,
 }
 
 impl VectorPredictor for IvpNet {
@@ -68,25 +74,62 @@ impl VectorPredictor for IvpNet {
     }
 }
 
-/// The frame predicted by `net`: iterative infilling with `iterations` for the vector variants,
-/// one pass for the intensity variant; new regions by the common rule.
-pub fn infill_frame(net: &IvpNet, inputs: &FrameInputs<'_>, iterations: usize) -> Result<RgbImage, InfillError> {
-    Ok(predict_frame(net, inputs, iterations)?.0)
+/// How the network covers a frame at test time.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Coverage {
+    /// One pass over the whole frame per iteration.
+    Dense,
+    /// Only the tiles that hold disocclusions still to fill ([`tiles`]); dense when that is cheaper.
+    Sparse(TileShape),
 }
 
-/// [`infill_frame`] with the vectors used and the time inside the network.
+impl Default for Coverage {
+    fn default() -> Self {
+        Coverage::Sparse(TileShape::DEFAULT)
+    }
+}
+
+/// The frame predicted by `net` in dense passes: iterative infilling with `iterations` for the
+/// vector variants, one pass for the intensity variant; new regions by the common rule.
+pub fn infill_frame(net: &IvpNet, inputs: &FrameInputs<'_>, iterations: usize) -> Result<RgbImage, InfillError> {
+    Ok(predict_frame(net, inputs, iterations, Coverage::Dense)?.image)
+}
+
+/// What [`predict_frame`] gives besides the image.
+struct FramePrediction {
+    image: RgbImage,
+    vectors: Option<VectorField>,
+    network_time: Duration,
+    /// Tiles run through the network over every iteration (0 in dense passes).
+    tiles: usize,
+}
+
+/// [`infill_frame`] with any coverage, the vectors used, the time inside the network and the tiles run.
 fn predict_frame(
     net: &IvpNet,
     inputs: &FrameInputs<'_>,
     iterations: usize,
-) -> Result<(RgbImage, Option<VectorField>, Duration), InfillError> {
+    coverage: Coverage,
+) -> Result<FramePrediction, InfillError> {
+    let (warped, depth, holes, prior) = (inputs.warped, inputs.warped_depth, inputs.holes, inputs.prior);
     if net.config().variant.predicts_vectors() {
-        let out = infill_iteratively(net, inputs.warped, inputs.warped_depth, inputs.holes, inputs.prior, iterations)?;
-        return Ok((out.image, Some(out.vectors), out.predict_time));
+        let (out, tiles) = match coverage {
+            Coverage::Dense => (infill_iteratively(net, warped, depth, holes, prior, iterations)?, 0),
+            Coverage::Sparse(shape) => {
+                let tiled = TiledPredictor::new(net, shape);
+                (infill_iteratively(&tiled, warped, depth, holes, prior, iterations)?, tiled.tiles_run())
+            }
+        };
+        return Ok(FramePrediction {
+            image: out.image,
+            vectors: Some(out.vectors),
+            network_time: out.predict_time,
+            tiles,
+        });
     }
     let started = Instant::now();
     let image = predict_intensity(net, inputs).map_err(|e| InfillError::Other(format!("network: {e}")))?;
-    Ok((image, None, started.elapsed()))
+    Ok(FramePrediction { image, vectors: None, network_time: started.elapsed(), tiles: 0 })
 }
 
 /// The intensity variant: the network's colours on the disocclusions, the warp elsewhere.
@@ -118,12 +161,22 @@ pub struct ModelInfiller {
     name: String,
     net: IvpNet,
     iterations: usize,
+    coverage: Coverage,
 }
 
 impl ModelInfiller {
-    /// `iterations` is P of SPEC §6.5 (ignored by the intensity variant).
+    /// `iterations` is P of SPEC §6.5 (ignored by the intensity variant). Sparse by default.
     pub fn new(name: impl Into<String>, net: IvpNet, iterations: usize) -> Self {
-        Self { name: name.into(), net, iterations }
+        Self { name: name.into(), net, iterations, coverage: Coverage::default() }
+    }
+
+    /// The same model covering frames as `coverage` says (the intensity variant is always dense).
+    pub fn with_coverage(self, coverage: Coverage) -> Self {
+        Self { coverage, ..self }
+    }
+
+    pub fn coverage(&self) -> Coverage {
+        self.coverage
     }
 
     pub fn net(&self) -> &IvpNet {
@@ -155,12 +208,13 @@ impl ModelInfiller {
             last_warped: last_warped.as_ref(),
         };
         let started = Instant::now();
-        let (image, vectors, network_time) = predict_frame(&self.net, &inputs, self.iterations)?;
-        let infill_time = started.elapsed().saturating_sub(network_time);
+        let out = predict_frame(&self.net, &inputs, self.iterations, self.coverage)?;
+        let infill_time = started.elapsed().saturating_sub(out.network_time);
         Ok(ModelPrediction {
-            image,
-            vectors,
-            stages: vec![("prior", prior_time), ("network", network_time), ("infill", infill_time)],
+            image: out.image,
+            vectors: out.vectors,
+            stages: vec![("prior", prior_time), ("network", out.network_time), ("infill", infill_time)],
+            tiles: out.tiles,
         })
     }
 }
@@ -302,7 +356,8 @@ mod tests {
         let scene = BoxScene::new();
         let (with, without) = (scene.context(true), scene.context(false));
         assert!(with.temporal_prior().unwrap().prior.as_flat().iter().any(|&x| x != 0.0));
-        for (variant, reads_prior) in [(Variant::Full, true), (Variant::NoDepth, true), (Variant::NoTemporalPrior, false)]
+        for (variant, reads_prior) in
+            [(Variant::Full, true), (Variant::NoDepth, true), (Variant::NoTemporalPrior, false)]
         {
             let (net, _) = IvpNet::seeded(ModelConfig { variant, width_mult: 0.125 }, 3).unwrap();
             let model = ModelInfiller::new("ivp", net, 3);

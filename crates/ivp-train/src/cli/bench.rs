@@ -1,0 +1,68 @@
+//! `ivp bench train|infer`: one training step or one inference timed on random inputs.
+
+use anyhow::{ensure, Result};
+use clap::Subcommand;
+
+use crate::bench::{bench_infer, bench_train, InferCase, TrainCase};
+
+#[derive(Subcommand)]
+pub enum BenchCommand {
+    /// Forward, sampler, losses, backward and Adam on one batch.
+    Train {
+        /// Crops in the batch.
+        #[arg(long, default_value_t = 4)]
+        batch: usize,
+        /// Side of the square crops.
+        #[arg(long, default_value_t = 256)]
+        crop: usize,
+        /// Timed runs (after untimed warm-up runs, as the reference does).
+        #[arg(long, default_value_t = 5)]
+        runs: usize,
+        /// Width multiplier of the U-Net (1 = the paper's widths).
+        #[arg(long, default_value_t = 1.0)]
+        width_mult: f64,
+        /// Add the milliseconds per run spent in each operator.
+        #[arg(long)]
+        profile: bool,
+    },
+    /// One dense forward pass and sampling of a frame (padded to a multiple of 16).
+    Infer {
+        /// Frame height in pixels.
+        #[arg(long, default_value_t = 1080)]
+        height: usize,
+        /// Frame width in pixels.
+        #[arg(long, default_value_t = 1920)]
+        width: usize,
+        /// Timed runs (after untimed warm-up runs, as the reference does).
+        #[arg(long, default_value_t = 3)]
+        runs: usize,
+        /// Width multiplier of the U-Net (1 = the paper's widths).
+        #[arg(long, default_value_t = 1.0)]
+        width_mult: f64,
+        /// Add the milliseconds per run spent in each operator.
+        #[arg(long)]
+        profile: bool,
+    },
+}
+
+pub fn run_bench(command: BenchCommand) -> Result<()> {
+    let report = match command {
+        BenchCommand::Train { batch, crop, runs, width_mult, profile } => {
+            ensure_width_mult(width_mult)?;
+            ensure!(batch > 0 && crop >= 16 && runs > 0, "--batch, --runs must be >= 1 and --crop >= 16");
+            bench_train(&TrainCase { batch, crop, runs, width_mult, profile })?
+        }
+        BenchCommand::Infer { height, width, runs, width_mult, profile } => {
+            ensure_width_mult(width_mult)?;
+            ensure!(height >= 16 && width >= 16 && runs > 0, "--height, --width must be >= 16 and --runs >= 1");
+            bench_infer(&InferCase { height, width, runs, width_mult, profile })?
+        }
+    };
+    println!("{}", serde_json::to_string(&report)?);
+    Ok(())
+}
+
+fn ensure_width_mult(m: f64) -> Result<()> {
+    ensure!(m > 0.0 && m.is_finite() && m <= 4.0, "--width-mult must be in (0, 4], got {m}");
+    Ok(())
+}

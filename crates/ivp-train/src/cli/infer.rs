@@ -1,0 +1,85 @@
+//! `ivp infer` and `ivp upsample`: a trained model on one target, or on every other frame of a clip.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{ensure, Result};
+use clap::Args;
+use ivp_core::inference::ModelInfiller;
+use ivp_data::Clip;
+
+use crate::checkpoint::load_model;
+use crate::infer;
+use crate::progress::progress_bar;
+
+#[derive(Args)]
+pub struct InferArgs {
+    /// The clip folder.
+    #[arg(long)]
+    clip: PathBuf,
+    /// A model file (ivp train writes RUN_DIR/model.safetensors).
+    #[arg(long)]
+    model: PathBuf,
+    /// The frame to predict (from frames T-1 and T-3).
+    #[arg(long)]
+    target: usize,
+    /// Iterations of the test-time infilling (SPEC §6.5).
+    #[arg(long, default_value_t = ivp_core::infill::DEFAULT_ITERATIONS)]
+    iterations: usize,
+    /// Output folder: infilled.png, holes.png, vectors.png, error.png.
+    #[arg(long)]
+    out: PathBuf,
+}
+
+#[derive(Args)]
+pub struct UpsampleArgs {
+    /// The clip folder; its even frames are taken as rendered.
+    #[arg(long)]
+    clip: PathBuf,
+    /// A model file (ivp train writes RUN_DIR/model.safetensors).
+    #[arg(long)]
+    model: PathBuf,
+    /// Iterations of the test-time infilling (SPEC §6.5).
+    #[arg(long, default_value_t = ivp_core::infill::DEFAULT_ITERATIONS)]
+    iterations: usize,
+    /// Output folder: frames/NNNN.png and preview.gif.
+    #[arg(long)]
+    out: PathBuf,
+}
+
+pub fn run_infer(args: InferArgs) -> Result<()> {
+    let model = model_infiller(&args.model, args.iterations)?;
+    let clip = Clip::open(&args.clip)?;
+    let outputs = infer::run_infer(&model, &clip, args.target, &args.out)?;
+    for f in &outputs.files {
+        println!("wrote {}", f.display());
+    }
+    if let Some(mae) = outputs.disocclusion_mae {
+        println!("mean absolute error on the disocclusions: {mae:.2} (0..255)");
+    }
+    Ok(())
+}
+
+pub fn run_upsample(args: UpsampleArgs, progress: bool) -> Result<()> {
+    let model = model_infiller(&args.model, args.iterations)?;
+    let clip = Clip::open(&args.clip)?;
+    let bar = progress_bar(progress, clip.len() as u64, "upsampling");
+    let summary = infer::run_upsample(&model, &clip, &args.out, |_| bar.inc(1))?;
+    bar.finish_and_clear();
+    println!(
+        "{} frames ({} predicted, {:.0} ms each{}) -> {}, preview {}",
+        summary.frames,
+        summary.predicted,
+        summary.ms_per_predicted_frame,
+        summary.d_mse.map_or(String::new(), |d| format!(", D-MSE {d:.1}")),
+        args.out.join("frames").display(),
+        summary.preview.display()
+    );
+    Ok(())
+}
+
+/// The model file as method `ivp`, with `iterations` of test-time infilling.
+fn model_infiller(file: &Path, iterations: usize) -> Result<ModelInfiller> {
+    ensure!(iterations > 0, "--iterations must be at least 1");
+    let (net, _) = load_model(file)?;
+    Ok(ModelInfiller::new("ivp", net, iterations))
+}

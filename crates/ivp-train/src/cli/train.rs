@@ -1,0 +1,190 @@
+//! `ivp train`, `ivp demo` and `ivp export`: training runs and their model files.
+
+use std::path::PathBuf;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+
+use anyhow::{Context, Result};
+use clap::Args;
+
+use crate::checkpoint::export_model;
+use crate::demo::{demo_config, demo_methods, evaluation_data, model_path, plan_training, DemoTraining};
+use crate::eval::{evaluate, format_table, DEFAULT_TARGETS};
+use crate::train::{train, RunOptions, TrainConfig};
+
+#[derive(Args)]
+pub struct TrainArgs {
+    /// Train on generated scenes (the default when --data is not given).
+    #[arg(long, conflicts_with = "data")]
+    synthetic: bool,
+    /// Train on the clips of this dataset folder.
+    #[arg(long)]
+    data: Option<PathBuf>,
+    /// A TOML file of training settings (any of the fields of `TrainConfig`); flags override it.
+    #[arg(long)]
+    config: Option<PathBuf>,
+    /// full, intensity, no-tg (zeros for the temporal prior) or no-depth (no depth head).
+    #[arg(long)]
+    variant: Option<String>,
+    /// Width multiplier of the U-Net: 1 = the paper's widths (64 ... 256); recipe: 0.25.
+    #[arg(long)]
+    width_mult: Option<f64>,
+    /// Training steps (recipe: 5000, about 21 minutes on 2 cores).
+    #[arg(long)]
+    steps: Option<u64>,
+    /// Crops per step (recipe: 16).
+    #[arg(long)]
+    batch: Option<usize>,
+    /// Side of the square training crops, centred on a disocclusion (recipe: 64).
+    #[arg(long)]
+    crop: Option<usize>,
+    /// Peak learning rate of Adam, after a warm-up and before a cosine decay (recipe: 1e-3).
+    #[arg(long)]
+    lr: Option<f64>,
+    /// Seed of the data and of the initial weights: the same seed gives the same run (recipe: 0).
+    #[arg(long)]
+    seed: Option<u64>,
+    /// Steps between checkpoints.
+    #[arg(long)]
+    checkpoint_every: Option<u64>,
+    /// Steps between validations (0: only at the end).
+    #[arg(long)]
+    validate_every: Option<u64>,
+    /// The run folder: config.toml, metrics.csv, loss.png, checkpoints/, model.safetensors.
+    #[arg(long)]
+    out: PathBuf,
+    /// Continue the run in --out from its last checkpoint (bit-identical to an uninterrupted run).
+    #[arg(long)]
+    resume: bool,
+    /// Stop after this step with a checkpoint, as Ctrl-C does; continue later with --resume.
+    #[arg(long)]
+    stop_at: Option<u64>,
+}
+
+#[derive(Args)]
+pub struct DemoArgs {
+    /// The run folder (run again to reuse the trained model and print the table again).
+    #[arg(long, default_value = "runs/demo")]
+    out: PathBuf,
+    /// Training steps (about 0.2 s each on 2 cores).
+    #[arg(long, default_value_t = 1000)]
+    steps: u64,
+    /// Clips to evaluate on; by default ../shared/data/blender-dev when it exists, otherwise
+    /// generated clips the network never saw.
+    #[arg(long)]
+    data: Option<PathBuf>,
+}
+
+#[derive(Args)]
+pub struct ExportArgs {
+    /// A checkpoint (RUN_DIR/checkpoints/step_*.safetensors) or a model file.
+    #[arg(long)]
+    checkpoint: PathBuf,
+    /// The model file to write.
+    #[arg(long)]
+    out: PathBuf,
+}
+
+pub fn run_train(args: TrainArgs, progress: bool) -> Result<()> {
+    let config = train_config(&args)?;
+    let stop = stop_on_ctrl_c()?;
+    println!(
+        "training {} (width {}) on {} for {} steps of {} crops of {}x{} -> {}",
+        config.variant,
+        config.width_mult,
+        config.data.as_ref().map_or("generated scenes".to_string(), |d| d.display().to_string()),
+        config.steps,
+        config.batch,
+        config.crop,
+        config.crop,
+        args.out.display()
+    );
+    let options = RunOptions { resume: args.resume, progress, stop: Some(stop), stop_at: args.stop_at };
+    let summary = train(&config, &args.out, &options)?;
+    let minutes = summary.elapsed.as_secs_f64() / 60.0;
+    if let (Some(v), Some(f)) = (summary.last_validation, summary.fill) {
+        println!(
+            "validation after {} steps ({minutes:.1} min): D-MSE {:.1} D-SSIM {:.4}; fill D-MSE {:.1} D-SSIM {:.4}",
+            summary.steps_done, v.d_mse, v.d_ssim, f.d_mse, f.d_ssim
+        );
+    }
+    match &summary.model_path {
+        Some(path) => println!("model written to {}", path.display()),
+        None => println!("stopped at step {}: continue with --resume", summary.steps_done),
+    }
+    Ok(())
+}
+
+/// The configuration of the run: `--config`, else (on resume) the run's own `config.toml`, else
+/// the recipe; then the flags given on top.
+fn train_config(args: &TrainArgs) -> Result<TrainConfig> {
+    let mut config = match &args.config {
+        Some(path) => TrainConfig::from_toml_file(path)?,
+        None if args.resume => {
+            // A resumed run keeps its configuration unless flags change it (only --steps may).
+            let path = args.out.join("config.toml");
+            TrainConfig::from_toml_file(&path).with_context(|| format!("resuming {}", args.out.display()))?
+        }
+        None => TrainConfig::default(),
+    };
+    if args.data.is_some() {
+        config.data = args.data.clone();
+    }
+    if args.synthetic {
+        config.data = None;
+    }
+    macro_rules! set {
+        ($($field:ident),*) => {$(if let Some(v) = args.$field.clone() { config.$field = v; })*};
+    }
+    set!(variant, width_mult, steps, batch, crop, lr, seed, checkpoint_every, validate_every);
+    config.validate()?;
+    Ok(config)
+}
+
+/// A flag the first Ctrl-C sets, so that training stops after its step with a checkpoint instead
+/// of losing the steps since the last one.
+fn stop_on_ctrl_c() -> Result<Arc<AtomicBool>> {
+    let stop = Arc::new(AtomicBool::new(false));
+    let flag = stop.clone();
+    ctrlc::set_handler(move || {
+        if flag.swap(true, Ordering::SeqCst) {
+            std::process::exit(130); // a second Ctrl-C: leave at once
+        }
+        eprintln!("\nCtrl-C: stopping after this step with a checkpoint (press again to quit at once)");
+    })
+    .context("installing the Ctrl-C handler")?;
+    Ok(stop)
+}
+
+pub fn run_demo(args: DemoArgs, progress: bool) -> Result<()> {
+    let config = demo_config(args.steps);
+    match plan_training(&args.out, &config)? {
+        DemoTraining::Reuse => println!("reusing the model trained in {}", args.out.display()),
+        DemoTraining::Train { resume } => {
+            println!(
+                "training a {} network (width {}) on generated scenes: {} steps of {} crops of {}x{} -> {}",
+                config.variant,
+                config.width_mult,
+                config.steps,
+                config.batch,
+                config.crop,
+                config.crop,
+                args.out.display()
+            );
+            let summary = train(&config, &args.out, &RunOptions { resume, progress, ..Default::default() })?;
+            println!("trained in {:.1} min", summary.elapsed.as_secs_f64() / 60.0);
+        }
+    }
+    let data = evaluation_data(args.data, &args.out)?;
+    let methods = demo_methods(&model_path(&args.out))?;
+    println!("evaluating on {}", data.display());
+    let report = evaluate(&data, &DEFAULT_TARGETS, &methods, progress)?;
+    print!("{}", format_table(&report));
+    Ok(())
+}
+
+pub fn run_export(args: ExportArgs) -> Result<()> {
+    let config = export_model(&args.checkpoint, &args.out)?;
+    println!("exported {} (width {}) to {}", config.variant, config.width_mult, args.out.display());
+    Ok(())
+}

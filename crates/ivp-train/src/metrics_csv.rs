@@ -1,0 +1,182 @@
+//! `metrics.csv` of a training run: one row per logged step (the training losses averaged since the
+//! previous row, the validation scores when the step validated, `fill` on the same crops), read
+//! back when a run resumes and drawn by `plot`.
+
+use std::path::PathBuf;
+use std::time::Duration;
+
+use anyhow::{ensure, Context, Result};
+
+use crate::validation::ValidationScores;
+
+/// The loss terms of one training step, as numbers.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct LossValues {
+    pub mse: f32,
+    pub ssim: f32,
+    pub smooth: f32,
+    /// The guide term (0 once it has faded), already weighted.
+    pub guide: f32,
+    pub total: f32,
+}
+
+/// Training losses accumulated between two log rows.
+#[derive(Default)]
+pub struct LossWindow {
+    sum: [f64; 5],
+    count: u32,
+}
+
+impl LossWindow {
+    pub fn add(&mut self, l: &LossValues) {
+        for (s, v) in self.sum.iter_mut().zip([l.mse, l.ssim, l.smooth, l.guide, l.total]) {
+            *s += v as f64;
+        }
+        self.count += 1;
+    }
+
+    /// The mean since the last call.
+    pub fn take(&mut self) -> LossValues {
+        let n = self.count.max(1) as f64;
+        let m = self.sum.map(|s| (s / n) as f32);
+        *self = Self::default();
+        LossValues { mse: m[0], ssim: m[1], smooth: m[2], guide: m[3], total: m[4] }
+    }
+}
+
+/// One row of `metrics.csv`.
+#[derive(Clone, Debug)]
+pub struct MetricsRow {
+    pub step: u64,
+    pub loss: LossValues,
+    pub validation: Option<ValidationScores>,
+    pub fill: ValidationScores,
+    pub elapsed: Duration,
+}
+
+const METRICS_HEADER: &str = "step,mse,ssim,smooth,guide,total,val_d_mse,val_d_ssim,fill_d_mse,fill_d_ssim,elapsed_s";
+
+/// `metrics.csv`, rewritten atomically after every row so that it is always complete.
+pub struct MetricsLog {
+    path: PathBuf,
+    rows: Vec<MetricsRow>,
+}
+
+impl MetricsLog {
+    pub fn new(path: PathBuf) -> Self {
+        Self { path, rows: Vec::new() }
+    }
+
+    /// The log of a run resumed at `step`: rows after it are dropped (they will be run again).
+    pub fn resume(path: PathBuf, step: u64) -> Result<Self> {
+        let mut rows = Vec::new();
+        if path.exists() {
+            let text = std::fs::read_to_string(&path).with_context(|| format!("cannot read {}", path.display()))?;
+            for (i, line) in text.lines().enumerate().skip(1) {
+                let row =
+                    parse_row(line).with_context(|| format!("{}: line {}: malformed row", path.display(), i + 1))?;
+                if row.step <= step {
+                    rows.push(row);
+                }
+            }
+        }
+        Ok(Self { path, rows })
+    }
+
+    pub fn push(&mut self, row: MetricsRow) {
+        self.rows.push(row);
+    }
+
+    pub fn rows(&self) -> &[MetricsRow] {
+        &self.rows
+    }
+
+    pub fn last_elapsed(&self) -> Duration {
+        self.rows.last().map_or(Duration::ZERO, |r| r.elapsed)
+    }
+
+    pub fn save(&self) -> Result<()> {
+        let mut text = String::from(METRICS_HEADER);
+        text.push('\n');
+        for r in &self.rows {
+            let v = r
+                .validation
+                .map_or((String::new(), String::new()), |v| (format!("{:.3}", v.d_mse), format!("{:.5}", v.d_ssim)));
+            text.push_str(&format!(
+                "{},{:.6},{:.6},{:.6},{:.6},{:.6},{},{},{:.3},{:.5},{:.1}\n",
+                r.step,
+                r.loss.mse,
+                r.loss.ssim,
+                r.loss.smooth,
+                r.loss.guide,
+                r.loss.total,
+                v.0,
+                v.1,
+                r.fill.d_mse,
+                r.fill.d_ssim,
+                r.elapsed.as_secs_f64()
+            ));
+        }
+        ivp_data::write_atomically(&self.path, text.as_bytes())?;
+        Ok(())
+    }
+}
+
+fn parse_row(line: &str) -> Result<MetricsRow> {
+    let f: Vec<&str> = line.split(',').collect();
+    ensure!(f.len() == 11, "{} fields, expected 11", f.len());
+    let num =
+        |i: usize| -> Result<f64> { f[i].parse::<f64>().with_context(|| format!("field {} is `{}`", i + 1, f[i])) };
+    let validation = (!f[6].is_empty())
+        .then(|| -> Result<ValidationScores> { Ok(ValidationScores { d_mse: num(6)?, d_ssim: num(7)? }) });
+    Ok(MetricsRow {
+        step: f[0].parse().with_context(|| format!("step `{}`", f[0]))?,
+        loss: LossValues {
+            mse: num(1)? as f32,
+            ssim: num(2)? as f32,
+            smooth: num(3)? as f32,
+            guide: num(4)? as f32,
+            total: num(5)? as f32,
+        },
+        validation: validation.transpose()?,
+        fill: ValidationScores { d_mse: num(8)?, d_ssim: num(9)? },
+        elapsed: Duration::from_secs_f64(num(10)?.max(0.0)),
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn row(step: u64, validation: Option<ValidationScores>) -> MetricsRow {
+        let loss = LossValues { mse: 0.5, ssim: 0.25, smooth: 0.125, guide: 0.0, total: 0.875 };
+        let fill = ValidationScores { d_mse: 581.5, d_ssim: 0.75 };
+        MetricsRow { step, loss, validation, fill, elapsed: Duration::from_secs(step) }
+    }
+
+    #[test]
+    fn a_resumed_log_keeps_the_rows_up_to_its_step() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("metrics.csv");
+        let mut log = MetricsLog::new(path.clone());
+        log.push(row(25, None));
+        log.push(row(50, Some(ValidationScores { d_mse: 400.25, d_ssim: 0.5 })));
+        log.push(row(75, None));
+        log.save().unwrap();
+        let resumed = MetricsLog::resume(path, 50).unwrap();
+        let steps: Vec<u64> = resumed.rows().iter().map(|r| r.step).collect();
+        assert_eq!(steps, [25, 50]);
+        assert_eq!(resumed.rows()[1].validation, Some(ValidationScores { d_mse: 400.25, d_ssim: 0.5 }));
+        assert_eq!(resumed.rows()[0].loss, row(25, None).loss);
+        assert_eq!(resumed.last_elapsed(), Duration::from_secs(50));
+    }
+
+    #[test]
+    fn losses_are_averaged_over_the_steps_of_a_row() {
+        let mut window = LossWindow::default();
+        window.add(&LossValues { total: 1.0, ..Default::default() });
+        window.add(&LossValues { total: 3.0, ..Default::default() });
+        assert_eq!(window.take().total, 2.0);
+        assert_eq!(window.take().total, 0.0, "take starts a new window");
+    }
+}
