@@ -12,12 +12,14 @@
 //! - `checkpoint`: model files and checkpoints, saved and strictly loaded.
 //! - `demo`: `ivp demo`'s decisions: reuse or train, which clips to score on, which methods.
 //! - `infer`: a trained model on one target (`ivp infer`) or on every other frame (`ivp upsample`).
-//! - `bench`: one training step or one inference timed on random inputs (`ivp bench`).
+//! - `bench`: one training step or one inference timed on random inputs (`ivp bench train|infer`).
+//! - `bench_frame`: one frame end to end on a generated clip, by stage (`ivp bench frame`).
 //! - `plot`: `loss.png` of a run.
 //! - `sheet`: labelled contact sheets, flow colours, and the sheet of a training sample.
 //! - `progress`: the progress bar every long-running command shows.
 
 pub mod bench;
+pub mod bench_frame;
 pub mod check;
 pub mod checkpoint;
 pub mod cli;

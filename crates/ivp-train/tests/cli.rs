@@ -274,6 +274,49 @@ fn train_export_eval_infer_and_upsample_from_the_command_line() {
     let gif = std::fs::read(up.join("preview.gif")).unwrap();
     assert!(gif.starts_with(b"GIF89a"));
 
+    // Dense and sparse inference of one target, and a tile shape that is refused with a reason.
+    let dense = dir.path().join("dense");
+    ok(&["infer", "--clip", s(&clip), "--model", s(&model), "--target", "6", "--dense", "--out", s(&dense)]);
+    assert_eq!(read_rgb(dense.join("holes.png")).unwrap(), read_rgb(infer.join("holes.png")).unwrap());
+    let out = ivp(&[
+        "infer",
+        "--clip",
+        s(&clip),
+        "--model",
+        s(&model),
+        "--target",
+        "6",
+        "--tile-core",
+        "24",
+        "--out",
+        s(&dense),
+    ]);
+    assert!(!out.status.success());
+    assert!(
+        String::from_utf8_lossy(&out.stderr).contains("multiples of 16"),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let json = ok(&[
+        "bench",
+        "frame",
+        "--height",
+        "64",
+        "--width",
+        "96",
+        "--width-mult",
+        "0.125",
+        "--runs",
+        "1",
+        "--iterations",
+        "2",
+    ]);
+    let report: serde_json::Value = serde_json::from_str(json.trim()).unwrap();
+    assert_eq!(report["coverage"], "sparse");
+    for stage in ["warp", "holes", "prior", "network", "infill", "total"] {
+        assert!(report["stages"][stage]["median_ms"].as_f64().is_some_and(|ms| ms >= 0.0), "{stage}: {json}");
+    }
+
     // Bad model files are refused with their name.
     let out = ivp(&["infer", "--clip", s(&clip), "--model", s(&config), "--target", "6", "--out", s(&infer)]);
     assert!(!out.status.success());

@@ -1,9 +1,14 @@
-//! `ivp bench train|infer`: one training step or one inference timed on random inputs.
+//! `ivp bench train|infer|frame`: one training step or one inference timed on random inputs, or
+//! one frame end to end on a generated clip.
 
 use anyhow::{ensure, Result};
 use clap::Subcommand;
 
+use std::path::PathBuf;
+
 use crate::bench::{bench_infer, bench_train, InferCase, TrainCase};
+use crate::bench_frame::{bench_frame, FrameCase};
+use crate::cli::CoverageArgs;
 
 #[derive(Subcommand)]
 pub enum BenchCommand {
@@ -43,6 +48,33 @@ pub enum BenchCommand {
         #[arg(long)]
         profile: bool,
     },
+    /// One frame end to end on a generated clip: warp, holes, prior, network, infill, by stage,
+    /// with the hole fraction, the tiles run, and the frame's D-MSE beside fill's.
+    Frame {
+        /// Frame height in pixels.
+        #[arg(long, default_value_t = 1080)]
+        height: usize,
+        /// Frame width in pixels.
+        #[arg(long, default_value_t = 1920)]
+        width: usize,
+        /// A trained model file; without it, an untrained network of --width-mult.
+        #[arg(long, conflicts_with = "width_mult")]
+        model: Option<PathBuf>,
+        /// Width multiplier of the untrained network (the recipe's is 0.25).
+        #[arg(long, default_value_t = 0.25)]
+        width_mult: f64,
+        /// Iterations of the test-time infilling (SPEC §6.5).
+        #[arg(long, default_value_t = ivp_core::infill::DEFAULT_ITERATIONS)]
+        iterations: usize,
+        /// Timed runs (after one untimed warm-up run).
+        #[arg(long, default_value_t = 5)]
+        runs: usize,
+        /// Seed of the generated scene.
+        #[arg(long, default_value_t = 0)]
+        seed: u64,
+        #[command(flatten)]
+        coverage: CoverageArgs,
+    },
 }
 
 pub fn run_bench(command: BenchCommand) -> Result<()> {
@@ -56,6 +88,15 @@ pub fn run_bench(command: BenchCommand) -> Result<()> {
             ensure_width_mult(width_mult)?;
             ensure!(height >= 16 && width >= 16 && runs > 0, "--height, --width must be >= 16 and --runs >= 1");
             bench_infer(&InferCase { height, width, runs, width_mult, profile })?
+        }
+        BenchCommand::Frame { height, width, model, width_mult, iterations, runs, seed, coverage } => {
+            ensure_width_mult(width_mult)?;
+            ensure!(height >= 16 && width >= 16, "--height and --width must be at least 16");
+            let case =
+                FrameCase { height, width, model, width_mult, iterations, coverage: coverage.coverage()?, runs, seed };
+            let report = bench_frame(&case)?;
+            println!("{}", serde_json::to_string(&report)?);
+            return Ok(());
         }
     };
     println!("{}", serde_json::to_string(&report)?);

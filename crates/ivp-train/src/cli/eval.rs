@@ -5,6 +5,7 @@ use std::path::PathBuf;
 use anyhow::Result;
 use clap::Args;
 
+use crate::cli::CoverageArgs;
 use crate::eval::{build_methods, evaluate, format_table, write_json, MethodSpecs, DEFAULT_TARGETS};
 
 #[derive(Args)]
@@ -33,6 +34,8 @@ pub struct EvalArgs {
     /// Score frames predicted by another tool: NAME=DIR, read from DIR/<clip name>/<t:04>.png.
     #[arg(long, value_name = "NAME=DIR")]
     external: Vec<String>,
+    #[command(flatten)]
+    coverage: CoverageArgs,
 }
 
 pub fn run_eval(args: EvalArgs, progress: bool) -> Result<()> {
@@ -41,6 +44,7 @@ pub fn run_eval(args: EvalArgs, progress: bool) -> Result<()> {
         models: &args.model,
         iterations: args.iterations,
         externals: &args.external,
+        coverage: args.coverage.coverage()?,
     })?;
     let report = evaluate(&args.data, &args.targets, &methods, progress)?;
     print!("{}", format_table(&report));

@@ -8,6 +8,7 @@ use ivp_core::inference::ModelInfiller;
 use ivp_data::Clip;
 
 use crate::checkpoint::load_model;
+use crate::cli::CoverageArgs;
 use crate::infer;
 use crate::progress::progress_bar;
 
@@ -28,6 +29,8 @@ pub struct InferArgs {
     /// Output folder: infilled.png, holes.png, vectors.png, error.png.
     #[arg(long)]
     out: PathBuf,
+    #[command(flatten)]
+    coverage: CoverageArgs,
 }
 
 #[derive(Args)]
@@ -44,10 +47,12 @@ pub struct UpsampleArgs {
     /// Output folder: frames/NNNN.png and preview.gif.
     #[arg(long)]
     out: PathBuf,
+    #[command(flatten)]
+    coverage: CoverageArgs,
 }
 
 pub fn run_infer(args: InferArgs) -> Result<()> {
-    let model = model_infiller(&args.model, args.iterations)?;
+    let model = model_infiller(&args.model, args.iterations, &args.coverage)?;
     let clip = Clip::open(&args.clip)?;
     let outputs = infer::run_infer(&model, &clip, args.target, &args.out)?;
     for f in &outputs.files {
@@ -60,7 +65,7 @@ pub fn run_infer(args: InferArgs) -> Result<()> {
 }
 
 pub fn run_upsample(args: UpsampleArgs, progress: bool) -> Result<()> {
-    let model = model_infiller(&args.model, args.iterations)?;
+    let model = model_infiller(&args.model, args.iterations, &args.coverage)?;
     let clip = Clip::open(&args.clip)?;
     let bar = progress_bar(progress, clip.len() as u64, "upsampling");
     let summary = infer::run_upsample(&model, &clip, &args.out, |_| bar.inc(1))?;
@@ -78,8 +83,9 @@ pub fn run_upsample(args: UpsampleArgs, progress: bool) -> Result<()> {
 }
 
 /// The model file as method `ivp`, with `iterations` of test-time infilling.
-fn model_infiller(file: &Path, iterations: usize) -> Result<ModelInfiller> {
+fn model_infiller(file: &Path, iterations: usize, coverage: &CoverageArgs) -> Result<ModelInfiller> {
     ensure!(iterations > 0, "--iterations must be at least 1");
+    let coverage = coverage.coverage()?;
     let (net, _) = load_model(file)?;
-    Ok(ModelInfiller::new("ivp", net, iterations))
+    Ok(ModelInfiller::new("ivp", net, iterations).with_coverage(coverage))
 }

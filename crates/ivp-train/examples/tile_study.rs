@@ -1,0 +1,92 @@
+//! Sparse inference against dense on real clips, for every tile shape of a list: how many vectors
+//! agree within 0.5 px, D-MSE and time per frame (the table "Choosing the tile shape" of
+//! PERFORMANCE.md).
+//!
+//! `cargo run --release -p ivp-train --example tile_study -- MODEL DATA TARGETS`, e.g.
+//! `... -- model.safetensors ../shared/data/blender-dev-hd 3,4,5`.
+
+use std::path::Path;
+use std::time::Instant;
+
+use ivp_core::geometry::FrameView;
+use ivp_core::inference::{Coverage, ModelInfiller, TileShape};
+use ivp_core::infill::InfillContext;
+use ivp_core::metrics::score_frame;
+use ivp_core::{relative_pose, warp_forward};
+
+#[global_allocator]
+static GLOBAL: mimalloc::MiMalloc = mimalloc::MiMalloc;
+
+const SHAPES: [(usize, usize); 7] = [(16, 16), (32, 16), (64, 16), (16, 32), (32, 32), (64, 32), (16, 48)];
+const AGREEMENT_PX: f32 = 0.5;
+
+/// Sums over the frames of one coverage.
+#[derive(Default)]
+struct Tally {
+    d_mse: f64,
+    frames: usize,
+    ms: f64,
+    agreeing: usize,
+    holes: usize,
+}
+
+fn main() -> anyhow::Result<()> {
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    anyhow::ensure!(args.len() == 3, "usage: tile_study MODEL DATA TARGETS (e.g. 6,8,10)");
+    let (net, _) = ivp_train::checkpoint::load_model(Path::new(&args[0]))?;
+    let targets: Vec<usize> = args[2].split(',').map(str::parse).collect::<Result<_, _>>()?;
+    let mut coverages = vec![Coverage::Dense];
+    coverages.extend(SHAPES.iter().map(|&(core, margin)| Coverage::Sparse(TileShape::new(core, margin).unwrap())));
+    let mut tallies: Vec<Tally> = coverages.iter().map(|_| Tally::default()).collect();
+    for dir in ivp_data::find_clips(Path::new(&args[1]))? {
+        let clip = ivp_data::Clip::open(&dir)?;
+        for &t in &targets {
+            let frames = (t - 3..=t).map(|i| clip.load_frame(i)).collect::<Result<Vec<_>, _>>()?;
+            let view =
+                |j: usize| FrameView { image: &frames[j].image, depth: &frames[j].depth, pose: clip.pose(t - 3 + j) };
+            let to_target = relative_pose(clip.pose(t - 1), clip.pose(t));
+            let warp = warp_forward(&frames[2].image, &frames[2].depth, clip.intrinsics(), &to_target);
+            let holes = warp.holes.disocclusions();
+            if !holes.contains(&true) {
+                continue;
+            }
+            let ctx = InfillContext {
+                intrinsics: clip.intrinsics(),
+                last: view(2),
+                before_last: Some(view(0)),
+                target_pose: clip.pose(t),
+                warped: &warp,
+                ground_truth: None,
+            };
+            let mut dense_vectors = None;
+            for (coverage, tally) in coverages.iter().zip(&mut tallies) {
+                let model = ModelInfiller::new("ivp", net.clone(), 3).with_coverage(*coverage);
+                model.predict(&ctx)?; // warm-up
+                let started = Instant::now();
+                let prediction = model.predict(&ctx)?;
+                tally.ms += started.elapsed().as_secs_f64() * 1e3;
+                tally.d_mse +=
+                    score_frame(&prediction.image.quantized_to_8bit(), &frames[3].image, &holes).d_mse.unwrap();
+                tally.frames += 1;
+                let vectors = prediction.vectors.expect("a vector variant");
+                let dense = dense_vectors.get_or_insert_with(|| vectors.clone());
+                for ((a, b), _) in dense.pixels().iter().zip(vectors.pixels()).zip(&holes).filter(|(_, &h)| h) {
+                    tally.holes += 1;
+                    tally.agreeing += usize::from((a[0] - b[0]).abs().max((a[1] - b[1]).abs()) <= AGREEMENT_PX);
+                }
+            }
+        }
+    }
+    println!("| coverage | D-MSE | vectors within {AGREEMENT_PX} px of dense | ms/frame |");
+    println!("|---|---|---|---|");
+    for (coverage, t) in coverages.iter().zip(&tallies) {
+        let name = match coverage {
+            Coverage::Dense => "dense".to_string(),
+            Coverage::Sparse(s) => format!("core {} margin {}", s.core, s.margin),
+        };
+        let share = 100.0 * t.agreeing as f64 / t.holes.max(1) as f64;
+        let n = t.frames.max(1) as f64;
+        println!("| {name} | {:.1} | {share:.2}% | {:.0} |", t.d_mse / n, t.ms / n);
+    }
+    Ok(())
+}

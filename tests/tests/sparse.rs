@@ -1,0 +1,79 @@
+//! Sparse inference against dense on a generated full-HD frame (PERFORMANCE.md, "Sparse
+//! inference", states the tolerance): the network's vectors agree, the frames score alike, and a
+//! frame without disocclusions never reaches the network.
+
+use std::time::Duration;
+
+use ivp_core::geometry::FrameView;
+use ivp_core::inference::{Coverage, ModelInfiller, ModelPrediction, TileShape};
+use ivp_core::infill::InfillContext;
+use ivp_core::metrics::score_frame;
+use ivp_core::nn::model::{IvpNet, ModelConfig, Variant};
+use ivp_core::{relative_pose, warp_forward, Warp};
+use ivp_data::{render_clip, SceneParams, SyntheticClip};
+
+/// The stated tolerance: at least this share of the disocclusion pixels are filled with vectors
+/// within [`VECTOR_TOLERANCE`] pixels of the dense ones (the iterative infilling makes discrete
+/// choices, so a few pixels that tip over a threshold may differ more), and the frame's D-MSE is
+/// within 1% of dense.
+const AGREEING_SHARE: f64 = 0.99;
+const VECTOR_TOLERANCE: f32 = 0.5;
+
+fn predict(clip: &SyntheticClip, warp: &Warp, coverage: Coverage) -> ModelPrediction {
+    let (net, _) = IvpNet::seeded(ModelConfig { variant: Variant::Full, width_mult: 0.125 }, 11).unwrap();
+    let model = ModelInfiller::new("ivp", net.detached(), 3).with_coverage(coverage);
+    let view =
+        |i: usize| FrameView { image: &clip.frames[i].image, depth: &clip.frames[i].depth, pose: &clip.poses[i] };
+    let ctx = InfillContext {
+        intrinsics: &clip.intrinsics,
+        last: view(2),
+        before_last: Some(view(0)),
+        target_pose: &clip.poses[3],
+        warped: warp,
+        ground_truth: None,
+    };
+    model.predict(&ctx).unwrap()
+}
+
+#[test]
+fn sparse_and_dense_agree_on_a_full_hd_frame() {
+    let params = SceneParams { width: 1920, height: 1080, frames: 4, ..Default::default() };
+    let clip = render_clip(3, &params);
+    let to_target = relative_pose(&clip.poses[2], &clip.poses[3]);
+    let warp = warp_forward(&clip.frames[2].image, &clip.frames[2].depth, &clip.intrinsics, &to_target);
+    let disocclusions = warp.holes.disocclusions();
+    let holes = disocclusions.iter().filter(|&&d| d).count();
+    assert!(holes > 500, "the generated frame has only {holes} disocclusion pixels");
+
+    let dense = predict(&clip, &warp, Coverage::Dense);
+    let sparse = predict(&clip, &warp, Coverage::Sparse(TileShape::DEFAULT));
+    assert!(sparse.tiles > 0 && dense.tiles == 0);
+    let (dv, sv) = (dense.vectors.as_ref().unwrap(), sparse.vectors.as_ref().unwrap());
+    let agreeing = (dv.pixels().iter().zip(sv.pixels()))
+        .zip(&disocclusions)
+        .filter(|((a, b), &d)| d && (a[0] - b[0]).abs().max((a[1] - b[1]).abs()) <= VECTOR_TOLERANCE)
+        .count();
+    let share = agreeing as f64 / holes as f64;
+    assert!(share >= AGREEING_SHARE, "only {:.2}% of the sparse vectors agree with dense", 100.0 * share);
+
+    let truth = &clip.frames[3].image;
+    let d_mse = |p: &ModelPrediction| score_frame(&p.image.quantized_to_8bit(), truth, &disocclusions).d_mse.unwrap();
+    let (d, s) = (d_mse(&dense), d_mse(&sparse));
+    assert!((s - d).abs() <= 0.01 * d, "D-MSE sparse {s:.2} against dense {d:.2}");
+}
+
+#[test]
+fn a_frame_without_disocclusions_runs_no_network_pass() {
+    let params = SceneParams { width: 640, height: 360, frames: 4, ..Default::default() };
+    let clip = render_clip(4, &params);
+    // The target seen from the last frame's own pose: nothing is uncovered.
+    let warp = warp_forward(&clip.frames[2].image, &clip.frames[2].depth, &clip.intrinsics, &glam::DMat4::IDENTITY);
+    assert_eq!(warp.holes.disocclusions().iter().filter(|&&d| d).count(), 0);
+    let mut still = clip;
+    still.poses[3] = still.poses[2];
+    for coverage in [Coverage::Sparse(TileShape::DEFAULT), Coverage::Dense] {
+        let out = predict(&still, &warp, coverage);
+        let network = out.stages.iter().find(|(name, _)| *name == "network").unwrap().1;
+        assert_eq!((out.tiles, network), (0, Duration::ZERO), "{coverage:?}");
+    }
+}
