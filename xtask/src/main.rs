@@ -1,9 +1,11 @@
 //! Project chores: `cargo xtask bench` (criterion benchmarks, and with `--torch` ivp's training
 //! step and inference against shared/bench/torch_reference.py in the same run), and
-//! `cargo xtask ablate` (train every model variant with one recipe and score them side by side).
+//! `cargo xtask ablate` (the paper's ablation table over several seeds, `ablate.rs`).
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
+
+mod ablate;
 
 use anyhow::{bail, Context, Result};
 use clap::{Parser, Subcommand};
@@ -17,22 +19,28 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Task {
-    /// Train each model variant with the default recipe (same seed, same data) and evaluate them
-    /// beside copy, warp and fill. Runs already trained in OUT are reused, stopped ones resumed.
+    /// The paper's Table 2: intensity, no-tg, no-depth, no-iter (full at P = 1) and full (P = 3),
+    /// each trained with every seed on identical data, scored on the Blender clips and a generated
+    /// held-out split; mean and spread over seeds in OUT/ablations.{md,csv}. Finished runs are
+    /// reused and stopped ones resumed.
     Ablate {
-        /// Comma-separated variants (full, no-tg, no-depth, intensity).
-        #[arg(long, value_delimiter = ',', default_value = "full,no-tg,no-depth,intensity")]
-        variants: Vec<String>,
-        /// Training steps per variant (the default recipe's when not given: about 21 minutes each
-        /// on 2 cores).
+        /// Seeds: each variant is trained once per seed.
+        #[arg(long, value_delimiter = ',', default_value = "0,1,2")]
+        seeds: Vec<u64>,
+        /// Training steps per run (the default recipe's when not given: about 21 minutes each on
+        /// 2 cores).
         #[arg(long)]
         steps: Option<u64>,
-        /// Clips to evaluate on.
+        /// The Blender clips to score on (besides the generated held-out split).
         #[arg(long, default_value = "../shared/data/blender-dev")]
         data: PathBuf,
-        /// Run folders go to OUT/<variant>; the scores to OUT/scores.json.
+        /// Run folders go to OUT/<variant>/seed<k>, the tables to OUT/ablations.{md,csv}.
         #[arg(long, default_value = "runs/ablate")]
         out: PathBuf,
+        /// A smoke test of the whole pipeline: 4 steps of a tiny network, tiny held-out clips,
+        /// the debug build of ivp (under 3 minutes).
+        #[arg(long)]
+        quick: bool,
     },
     /// Run the criterion benchmarks (warping a 1920x1080 frame, convolutions, training samples).
     Bench {
@@ -54,7 +62,12 @@ enum Task {
 
 fn main() -> Result<()> {
     match Cli::parse().command {
-        Task::Ablate { variants, steps, data, out } => ablate(&variants, steps, &data, &out),
+        Task::Ablate { seeds, steps, data, out, quick } => {
+            ablate::check_seeds(&seeds)?;
+            let ivp = if quick { build_ivp_debug(&root())? } else { build_ivp(&root())? };
+            let out = if quick && out == Path::new("runs/ablate") { PathBuf::from("runs/ablate-quick") } else { out };
+            ablate::ablate(&ivp, &ablate::Sweep { seeds, steps, blender: data, out, quick })
+        }
         Task::Bench { torch: true, threads, runs, .. } => bench_against_torch(threads, runs),
         Task::Bench { filter, .. } => bench(filter.as_deref()),
     }
@@ -129,43 +142,17 @@ fn build_ivp(root: &Path) -> Result<PathBuf> {
     Ok(root.join("target/release/ivp"))
 }
 
+/// Builds the `ivp` binary in the dev profile (what the tests already built) and returns its path.
+fn build_ivp_debug(root: &Path) -> Result<PathBuf> {
+    let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
+    run(Command::new(cargo).current_dir(root).args(["build", "-p", "ivp-train", "--bin", "ivp"]))?;
+    Ok(root.join("target/debug/ivp"))
+}
+
 fn run(cmd: &mut Command) -> Result<()> {
     let status = cmd.status().with_context(|| format!("running {cmd:?}"))?;
     if !status.success() {
         bail!("{cmd:?} failed: {status}");
     }
     Ok(())
-}
-
-fn ablate(variants: &[String], steps: Option<u64>, data: &Path, out: &Path) -> Result<()> {
-    let root = root();
-    let ivp = build_ivp(&root)?;
-    // Paths on the command line are relative to where the user stands, not to the workspace.
-    let mut models = Vec::new();
-    for variant in variants {
-        let dir = out.join(variant);
-        let model = dir.join("model.safetensors");
-        if model.is_file() {
-            println!("{variant}: reusing {}", model.display());
-        } else {
-            let mut cmd = Command::new(&ivp);
-            cmd.args(["train", "--synthetic", "--variant", variant, "--out"]).arg(&dir);
-            if let Some(n) = steps {
-                cmd.args(["--steps", &n.to_string()]);
-            }
-            if dir.join("checkpoints").is_dir() {
-                cmd.arg("--resume");
-            }
-            println!("{variant}: training in {}", dir.display());
-            run(&mut cmd)?;
-        }
-        models.push(format!("{variant}={}", model.display()));
-    }
-    let mut cmd = Command::new(&ivp);
-    cmd.args(["eval", "--data"]).arg(data).args(["--methods", "copy,warp,fill"]);
-    for m in &models {
-        cmd.args(["--model", m]);
-    }
-    cmd.arg("--json").arg(out.join("scores.json"));
-    run(&mut cmd)
 }

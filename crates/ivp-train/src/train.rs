@@ -46,8 +46,8 @@ pub struct TrainConfig {
     pub batch: usize,
     pub crop: usize,
     /// Steps during which a guide term pulls the vectors towards the temporal prior spread into
-    /// the holes, fading linearly to nothing (0: the paper's losses alone from the start). See
-    /// [`guide_loss`].
+    /// the holes, fading linearly to nothing (0: the paper's losses alone from the start). Only
+    /// the variants that read the prior (`full`, `no-depth`) are guided. See [`guide_loss`].
     pub guide_steps: u64,
     /// Peak learning rate of Adam.
     pub lr: f64,
@@ -321,8 +321,10 @@ pub fn train(config: &TrainConfig, run_dir: &Path, options: &RunOptions) -> Resu
 }
 
 /// One optimisation step on `input` with ground truth `truth`; returns the losses before the update.
-/// `guide_weight` scales the guide term ([`guide_loss`]; 0 leaves it out). A non-finite loss is an
-/// error and leaves the parameters untouched.
+/// `guide_weight` scales the guide term ([`guide_loss`]; 0 leaves it out). The guide pulls towards
+/// the temporal prior, so it applies only to the variants that read the prior: an ablation
+/// without temporal guidance must not learn from the prior through the loss either. A non-finite
+/// loss is an error and leaves the parameters untouched.
 pub fn training_step(
     net: &IvpNet,
     optimizer: &mut Adam,
@@ -335,7 +337,8 @@ pub fn training_step(
     let terms = ivp_loss(&out.frame, truth, input.mask, out.vectors.as_ref(), weights)?;
     let mut total = terms.total.clone();
     let mut guide = 0.0;
-    if let (Some(vectors), true) = (&out.vectors, guide_weight > 0.0) {
+    let guided = guide_weight > 0.0 && net.config().variant.reads_temporal_prior();
+    if let (Some(vectors), true) = (&out.vectors, guided) {
         let term = (guide_loss(vectors, input.prior, input.mask)? * guide_weight)?;
         guide = term.to_scalar::<f32>()?;
         total = (total + term)?;
@@ -442,6 +445,29 @@ mod tests {
 
     fn tensor(v: Vec<f32>, shape: (usize, usize, usize, usize)) -> Tensor {
         Tensor::from_vec(v, shape, &Device::Cpu).unwrap()
+    }
+
+    #[test]
+    fn variants_without_the_temporal_prior_are_never_guided_by_it() {
+        let (b, h, w) = (1, 16, 16);
+        let ramp =
+            |c: usize, scale: f32| tensor((0..b * c * h * w).map(|i| (i % 7) as f32 * scale).collect(), (b, c, h, w));
+        let mask = tensor((0..h * w).map(|i| f32::from((100..140).contains(&i))).collect(), (b, 1, h, w));
+        let (prior, depth, warped) = (ramp(2, 1.0), ramp(1, 0.5), ramp(3, 0.1));
+        let input = NetInput {
+            prior: &prior,
+            warped_depth: &depth,
+            mask: &mask,
+            warped: &warped,
+            last: None,
+            last_warped: None,
+        };
+        for (variant, guided) in [(Variant::Full, true), (Variant::NoDepth, true), (Variant::NoTemporalPrior, false)] {
+            let (net, varmap) = IvpNet::seeded(ModelConfig { variant, width_mult: 0.125 }, 1).unwrap();
+            let mut optimizer = Adam::new(named_parameters(&varmap), AdamConfig::default()).unwrap();
+            let values = training_step(&net, &mut optimizer, &input, &warped, &LossWeights::default(), 1.0).unwrap();
+            assert_eq!(values.guide > 0.0, guided, "{variant}: guide {}", values.guide);
+        }
     }
 
     #[test]

@@ -63,6 +63,12 @@ impl Variant {
         self != Variant::Intensity
     }
 
+    /// True for the variants whose input holds the temporal prior (`no-tg` and `intensity` never
+    /// see it).
+    pub fn reads_temporal_prior(self) -> bool {
+        matches!(self, Variant::Full | Variant::NoDepth)
+    }
+
     fn has_depth_head(self) -> bool {
         self != Variant::NoDepth
     }

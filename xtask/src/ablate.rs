@@ -1,0 +1,258 @@
+//! `cargo xtask ablate`: the rows of the paper's Table 2, each trained with several seeds on
+//! identical data, scored on the Blender clips and on a generated held-out split, and summarised
+//! as mean and standard deviation over the seeds.
+//!
+//! Rows: `intensity` (the U-Net predicts colours), `no-tg` (zeros for the temporal prior, and no
+//! guide term: it pulls towards the prior, see `training_step`), `no-depth`, `no-iter` (the full
+//! model at P = 1) and `full` (P = 3). `no-iter` and `full` are the same trained models. Runs that
+//! finished are reused and stopped ones resumed, so a sweep can span several sittings.
+
+use std::collections::BTreeMap;
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+use anyhow::{bail, Context, Result};
+
+use crate::run;
+
+/// The variants trained, in the order of the table.
+const TRAINED: [&str; 4] = ["intensity", "no-tg", "no-depth", "full"];
+
+/// A row of the table: the trained variant it uses and the iterations of its test-time infilling.
+const ROWS: [(&str, &str, usize); 5] = [
+    ("intensity", "intensity", 3),
+    ("no-tg", "no-tg", 3),
+    ("no-depth", "no-depth", 3),
+    ("no-iter", "full", 1),
+    ("full", "full", 3),
+];
+
+/// Seed of the generated held-out clips: far from the training stream's seeds (the demo's too).
+const HELD_OUT_SEED: &str = "59297";
+
+/// What one sweep does.
+pub struct Sweep {
+    pub seeds: Vec<u64>,
+    /// Training steps (the recipe's when `None`).
+    pub steps: Option<u64>,
+    /// The Blender clips (skipped when absent).
+    pub blender: PathBuf,
+    pub out: PathBuf,
+    /// A few steps at small sizes: a smoke test of the whole pipeline.
+    pub quick: bool,
+}
+
+/// One score of one row, seed and dataset.
+#[derive(Clone, Debug)]
+struct Score {
+    row: &'static str,
+    seed: u64,
+    dataset: String,
+    d_mse: f64,
+    d_ssim: f64,
+    tc: Option<f64>,
+    ms_per_frame: f64,
+    train_minutes: f64,
+}
+
+pub fn ablate(ivp: &Path, sweep: &Sweep) -> Result<()> {
+    std::fs::create_dir_all(&sweep.out).with_context(|| format!("creating {}", sweep.out.display()))?;
+    let held_out = generate_held_out(ivp, sweep)?;
+    let mut datasets = vec![("generated".to_string(), held_out)];
+    if sweep.blender.is_dir() && !sweep.quick {
+        datasets.insert(0, ("blender-dev".to_string(), sweep.blender.clone()));
+    } else if !sweep.quick {
+        eprintln!("warning: {} is missing; scoring on the generated split only", sweep.blender.display());
+    }
+
+    let mut scores = Vec::new();
+    for &seed in &sweep.seeds {
+        let mut models = BTreeMap::new();
+        for variant in TRAINED {
+            let dir = sweep.out.join(variant).join(format!("seed{seed}"));
+            train(ivp, sweep, variant, seed, &dir)?;
+            models.insert(variant, dir);
+        }
+        for (name, data) in &datasets {
+            for (iterations, rows) in [(3, &ROWS[..]), (1, &ROWS[3..4])] {
+                let rows: Vec<_> = rows.iter().filter(|r| r.2 == iterations).collect();
+                let json = sweep.out.join(format!("scores_{name}_seed{seed}_P{iterations}.json"));
+                let mut cmd = Command::new(ivp);
+                // The default targets (6, 8, 10) of 12-frame clips, with the temporal consistency tracks.
+                cmd.args(["--quiet", "eval", "--data"]).arg(data).args(["--methods", "fill"]);
+                cmd.args(["--iterations", &iterations.to_string()]).arg("--json").arg(&json);
+                for (row, variant, _) in &rows {
+                    cmd.arg("--model").arg(format!("{row}={}", models[variant].join("model.safetensors").display()));
+                }
+                run(cmd.stdout(std::process::Stdio::null()))?;
+                let report: serde_json::Value = serde_json::from_slice(&std::fs::read(&json)?)?;
+                let mut rows: Vec<(&'static str, Option<&str>)> = rows.iter().map(|r| (r.0, Some(r.1))).collect();
+                if iterations == 3 {
+                    rows.insert(0, ("fill", None)); // the classical baseline, on the same frames
+                }
+                for (row, variant) in rows {
+                    let m = &report["methods"][row];
+                    let number =
+                        |key: &str| m[key].as_f64().with_context(|| format!("{}: no {key} for {row}", json.display()));
+                    scores.push(Score {
+                        row,
+                        seed,
+                        dataset: name.clone(),
+                        d_mse: number("d_mse")?,
+                        d_ssim: number("d_ssim")?,
+                        tc: m["tc"].as_f64(),
+                        ms_per_frame: number("ms_per_frame")?,
+                        train_minutes: variant.map_or(Ok(0.0), |v| train_minutes(&models[v]))?,
+                    });
+                }
+            }
+        }
+    }
+    let (csv, md) = (sweep.out.join("ablations.csv"), sweep.out.join("ablations.md"));
+    std::fs::write(&csv, to_csv(&scores)).with_context(|| format!("writing {}", csv.display()))?;
+    std::fs::write(&md, to_markdown(&scores, sweep)).with_context(|| format!("writing {}", md.display()))?;
+    print!("{}", std::fs::read_to_string(&md)?);
+    println!("written: {} and {}", csv.display(), md.display());
+    Ok(())
+}
+
+/// The held-out clips, generated once (the same seed gives byte-identical files).
+fn generate_held_out(ivp: &Path, sweep: &Sweep) -> Result<PathBuf> {
+    let dir = sweep.out.join("held-out");
+    if !dir.is_dir() {
+        let mut cmd = Command::new(ivp);
+        cmd.args(["--quiet", "generate", "--out"]).arg(&dir).args(["--seed", HELD_OUT_SEED]);
+        if sweep.quick {
+            cmd.args(["--clips", "2", "--width", "96", "--height", "72"]);
+        } else {
+            cmd.args(["--clips", "4"]);
+        }
+        run(&mut cmd)?;
+    }
+    Ok(dir)
+}
+
+fn train(ivp: &Path, sweep: &Sweep, variant: &str, seed: u64, dir: &Path) -> Result<()> {
+    if dir.join("model.safetensors").is_file() {
+        println!("{variant} seed {seed}: reusing {}", dir.display());
+        return Ok(());
+    }
+    let mut cmd = Command::new(ivp);
+    cmd.args(["--quiet", "train", "--synthetic", "--variant", variant, "--seed", &seed.to_string(), "--out"]).arg(dir);
+    if sweep.quick {
+        let config = sweep.out.join("quick.toml");
+        std::fs::write(&config, QUICK_RECIPE).with_context(|| format!("writing {}", config.display()))?;
+        cmd.arg("--config").arg(config);
+    }
+    if let Some(steps) = sweep.steps {
+        cmd.args(["--steps", &steps.to_string()]);
+    }
+    if dir.join("checkpoints").is_dir() {
+        cmd.arg("--resume");
+    }
+    println!("{variant} seed {seed}: training in {}", dir.display());
+    run(&mut cmd)
+}
+
+/// The smoke test's recipe: seconds, not minutes.
+const QUICK_RECIPE: &str = "width_mult = 0.125\nsteps = 4\nbatch = 2\ncrop = 32\nguide_steps = 2\n\
+                            validation_samples = 2\nlog_every = 1\nvalidate_every = 0\ncheckpoint_every = 2\n";
+
+/// Minutes of training of a finished run: the last `elapsed_s` of its `metrics.csv`.
+fn train_minutes(run_dir: &Path) -> Result<f64> {
+    let path = run_dir.join("metrics.csv");
+    let text = std::fs::read_to_string(&path).with_context(|| format!("reading {}", path.display()))?;
+    let last = text.lines().last().context("empty metrics.csv")?;
+    let seconds: f64 =
+        last.rsplit(',').next().unwrap_or("").parse().with_context(|| format!("{}: last row", path.display()))?;
+    Ok(seconds / 60.0)
+}
+
+fn to_csv(scores: &[Score]) -> String {
+    let mut out = String::from("variant,seed,d_mse,d_ssim,tc,ms_per_frame,train_minutes,dataset\n");
+    for s in scores {
+        let tc = s.tc.map_or(String::new(), |t| format!("{t:.2}"));
+        let _ = writeln!(
+            out,
+            "{},{},{:.2},{:.4},{tc},{:.1},{:.2},{}",
+            s.row, s.seed, s.d_mse, s.d_ssim, s.ms_per_frame, s.train_minutes, s.dataset
+        );
+    }
+    out
+}
+
+/// Mean and sample standard deviation (0 for one value).
+fn mean_std(values: &[f64]) -> (f64, f64) {
+    let n = values.len() as f64;
+    let mean = values.iter().sum::<f64>() / n;
+    let var = if values.len() > 1 { values.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / (n - 1.0) } else { 0.0 };
+    (mean, var.sqrt())
+}
+
+fn to_markdown(scores: &[Score], sweep: &Sweep) -> String {
+    let mut out = String::new();
+    let seeds: Vec<String> = sweep.seeds.iter().map(u64::to_string).collect();
+    let _ = writeln!(out, "# Ablations: mean ± standard deviation over seeds {}\n", seeds.join(", "));
+    let datasets: Vec<&String> =
+        scores.iter().map(|s| &s.dataset).collect::<std::collections::BTreeSet<_>>().into_iter().collect();
+    for dataset in datasets {
+        let _ = writeln!(out, "## {dataset}\n");
+        let _ = writeln!(out, "| row | D-MSE | D-SSIM | TC | ms/frame | training minutes |");
+        let _ = writeln!(out, "|---|---|---|---|---|---|");
+        for row in std::iter::once("fill").chain(ROWS.iter().map(|r| r.0)) {
+            let of: Vec<&Score> = scores.iter().filter(|s| s.row == row && &s.dataset == dataset).collect();
+            if of.is_empty() {
+                continue;
+            }
+            let stat = |f: &dyn Fn(&Score) -> Option<f64>, digits: usize| {
+                let values: Vec<f64> = of.iter().filter_map(|s| f(s)).collect();
+                if values.is_empty() {
+                    return "-".to_string();
+                }
+                let (m, s) = mean_std(&values);
+                format!("{m:.digits$} ± {s:.digits$}")
+            };
+            let _ = writeln!(
+                out,
+                "| {row} | {} | {} | {} | {} | {} |",
+                stat(&|s| Some(s.d_mse), 1),
+                stat(&|s| Some(s.d_ssim), 4),
+                stat(&|s| s.tc, 1),
+                stat(&|s| Some(s.ms_per_frame), 0),
+                stat(&|s| Some(s.train_minutes), 1)
+            );
+        }
+        out.push('\n');
+    }
+    let steps = sweep.steps.map_or(String::new(), |s| format!(" --steps {s}"));
+    let quick = if sweep.quick { " --quick" } else { "" };
+    let _ = writeln!(
+        out,
+        "Made by `cargo xtask ablate --seeds {}{steps}{quick} --out {}`.",
+        seeds.join(","),
+        sweep.out.display()
+    );
+    out
+}
+
+/// Refuses seeds given twice (their rows would be counted twice in the spread).
+pub fn check_seeds(seeds: &[u64]) -> Result<()> {
+    let unique: std::collections::BTreeSet<_> = seeds.iter().collect();
+    if unique.len() != seeds.len() || seeds.is_empty() {
+        bail!("--seeds must list distinct seeds, got {seeds:?}");
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn spread_is_the_sample_standard_deviation() {
+        assert_eq!(mean_std(&[2.0, 4.0, 6.0]), (4.0, 2.0));
+        assert_eq!(mean_std(&[5.0]), (5.0, 0.0));
+        assert!(check_seeds(&[0, 1, 1]).is_err() && check_seeds(&[]).is_err() && check_seeds(&[0, 1]).is_ok());
+    }
+}
