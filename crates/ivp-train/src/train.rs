@@ -24,7 +24,7 @@ use ivp_data::samples::{
 use ivp_data::SceneParams;
 use serde::{Deserialize, Serialize};
 
-use crate::checkpoint::{load_checkpoint, restore_parameters, save_checkpoint, save_model};
+use crate::checkpoint::{check_width_mult, load_checkpoint, restore_parameters, save_checkpoint, save_model};
 use crate::metrics_csv::{LossWindow, MetricsLog, MetricsRow};
 use crate::plot::write_loss_curve;
 use crate::progress::progress_bar;
@@ -117,11 +117,7 @@ impl TrainConfig {
 
     pub fn validate(&self) -> Result<()> {
         self.model()?;
-        ensure!(
-            self.width_mult > 0.0 && self.width_mult <= 4.0,
-            "width_mult must be in (0, 4], got {}",
-            self.width_mult
-        );
+        check_width_mult(self.width_mult).map_err(anyhow::Error::msg)?;
         ensure!(self.steps > 0, "steps must be at least 1");
         ensure!(self.batch > 0, "batch must be at least 1");
         ensure!(self.crop >= 16, "crop must be at least 16, got {}", self.crop);
@@ -445,6 +441,25 @@ mod tests {
 
     fn tensor(v: Vec<f32>, shape: (usize, usize, usize, usize)) -> Tensor {
         Tensor::from_vec(v, shape, &Device::Cpu).unwrap()
+    }
+
+    #[test]
+    fn the_paper_recipe_reads_and_differs_from_the_default_as_documented() {
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../recipes/paper.toml");
+        let paper = TrainConfig::from_toml_file(&path).unwrap();
+        paper.validate().unwrap();
+        let expected = TrainConfig {
+            width_mult: 1.0,
+            batch: 4,
+            crop: 256,
+            lr: 1e-4,
+            warmup_steps: 0,
+            final_lr_fraction: 1.0,
+            guide_steps: 0,
+            validation_samples: 64,
+            ..TrainConfig::default()
+        };
+        assert_eq!(paper, expected);
     }
 
     #[test]
