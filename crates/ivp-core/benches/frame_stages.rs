@@ -1,0 +1,62 @@
+//! The per-frame stages of inference at 1920x1080 besides the network (`ivp bench frame` times
+//! them end to end): the temporal prior, the background depth threshold, the new-region rule,
+//! the classical infillers and the tile plan of sparse inference.
+//!
+//! `cargo bench -p ivp-core --bench frame_stages`.
+
+#[global_allocator]
+static GLOBAL: mimalloc::MiMalloc = mimalloc::MiMalloc;
+
+use criterion::{criterion_group, criterion_main, Criterion};
+use glam::{DMat4, DVec3};
+use ivp_core::geometry::FrameView;
+use ivp_core::inference::{plan_tiles, TileShape};
+use ivp_core::infill::{classical_infiller, fill_new_regions, InfillContext};
+use ivp_core::prior::{background_depth_threshold, target_prior};
+use ivp_core::{relative_pose, warp_forward, DepthMap, Image, Intrinsics, RgbImage, WorldToCamera};
+
+/// A wall with boxes in front of it, seen from a camera at `x` metres.
+fn frame(w: usize, h: usize, x: f64) -> (RgbImage, DepthMap, WorldToCamera) {
+    let image = Image::from_fn(w, h, |u, v| [u as f32 / w as f32, v as f32 / h as f32, ((u ^ v) & 255) as f32 / 255.0]);
+    let depth = Image::from_fn(w, h, |u, v| [if (u / 160 + v / 120) % 3 == 0 { 1.5 } else { 6.0 + (u as f32) * 1e-3 }]);
+    (image, depth, WorldToCamera(DMat4::from_translation(DVec3::new(-x, 0.0, 0.0))))
+}
+
+fn bench_stages(c: &mut Criterion) {
+    let (w, h) = (1920, 1080);
+    let k = Intrinsics::iisc_veed_default();
+    // Frames n-2, n and t of a camera sliding 1 cm a frame: holes beside every box.
+    let frames = [frame(w, h, 0.0), frame(w, h, 0.02), frame(w, h, 0.03)];
+    let view = |i: usize| FrameView { image: &frames[i].0, depth: &frames[i].1, pose: &frames[i].2 };
+    let warp = warp_forward(&frames[1].0, &frames[1].1, &k, &relative_pose(&frames[1].2, &frames[2].2));
+    let known = warp.holes.known();
+    let holes = warp.holes.disocclusions();
+    let ctx = InfillContext {
+        intrinsics: &k,
+        last: view(1),
+        before_last: Some(view(0)),
+        target_pose: &frames[2].2,
+        warped: &warp,
+        ground_truth: Some(&frames[2].0),
+    };
+    let mut group = c.benchmark_group("frame_stages_1920x1080");
+    group.sample_size(20);
+    group.bench_function("target_prior", |b| b.iter(|| target_prior(&view(0), &view(1), &frames[2].2, &k, &known)));
+    group.bench_function("background_depth_threshold", |b| b.iter(|| background_depth_threshold(&known, &warp.depth)));
+    group.bench_function("fill_new_regions", |b| {
+        b.iter(|| {
+            let mut image = warp.image.clone();
+            fill_new_regions(&mut image, &warp.holes);
+            image
+        })
+    });
+    group.bench_function("plan_tiles", |b| b.iter(|| plan_tiles(w, h, &holes, TileShape::DEFAULT)));
+    for method in ["fill", "telea"] {
+        let infiller = classical_infiller(method).unwrap();
+        group.bench_function(method, |b| b.iter(|| infiller.infill(&ctx).unwrap()));
+    }
+    group.finish();
+}
+
+criterion_group!(benches, bench_stages);
+criterion_main!(benches);
