@@ -5,7 +5,8 @@ use std::path::{Path, PathBuf};
 
 use ivp_core::{DepthMap, Intrinsics, RgbImage, WorldToCamera};
 
-use crate::csv::{read_intrinsics, read_poses, INTRINSICS_FILE, POSES_FILE};
+use crate::csv::{check_intrinsics, read_intrinsics, read_poses, INTRINSICS_FILE, POSES_FILE};
+use crate::depth::{check_depth, DepthStats};
 use crate::error::{DataError, Result};
 use crate::frames::{list_frames, FrameFiles, Layout};
 use crate::io::{depth_exr_size, image_size, read_depth_exr, read_rgb};
@@ -59,8 +60,9 @@ pub struct Clip {
 
 impl Clip {
     /// Opens a clip folder in either layout and validates it cheaply: frame files pair up without
-    /// gaps, one finite invertible pose per frame, valid intrinsics, and every image and depth header
-    /// has the same size. Pixel data is not read.
+    /// gaps, one finite rigid pose per frame (`read_poses`), plausible intrinsics for the frame size
+    /// (`check_intrinsics`), and every image and depth header has the same size. Pixel data is not
+    /// read.
     pub fn open(dir: impl AsRef<Path>) -> Result<Clip> {
         let path = dir.as_ref().to_path_buf();
         let format = detect_format(&path)?;
@@ -135,15 +137,35 @@ impl Clip {
         Ok(image)
     }
 
-    /// The planar depth of frame `i`, whatever the format stores.
+    /// The planar depth of frame `i`, whatever the format stores. A map without a usable value is
+    /// an error; one with many invalid or implausible values gets a warning (see [`DepthStats`]).
     pub fn load_depth(&self, i: usize) -> Result<DepthMap> {
+        Ok(self.load_depth_with_stats(i)?.0)
+    }
+
+    /// [`Clip::load_depth`] with the counts of each class of depth value.
+    pub fn load_depth_with_stats(&self, i: usize) -> Result<(DepthMap, DepthStats)> {
+        let (depth, stats) = self.read_depth(i)?;
+        check_depth(self.depth_path(i), &stats)?;
+        Ok((depth, stats))
+    }
+
+    /// The counts of each class of depth value of frame `i`, without refusing a frame that has no
+    /// usable depth (for `ivp check`, which reports every frame). Unreadable files are still errors.
+    pub fn depth_stats(&self, i: usize) -> Result<DepthStats> {
+        Ok(self.read_depth(i)?.1)
+    }
+
+    fn read_depth(&self, i: usize) -> Result<(DepthMap, DepthStats)> {
         let path = &self.frame_files(i)?.depth;
         let depth = match self.format {
             ClipFormat::IiscVeed => read_depth_exr(path)?,
             ClipFormat::SceneNet => read_scenenet_depth(path, &self.intrinsics)?,
         };
         self.check_size(path, depth.width(), depth.height())?;
-        Ok(depth)
+        // SceneNet's reader turns "no reading" (0 mm) into NaN: there it means missing, not invalid.
+        let stats = DepthStats::of(&depth, self.format == ClipFormat::SceneNet);
+        Ok((depth, stats))
     }
 
     pub fn load_frame(&self, i: usize) -> Result<Frame> {
@@ -217,7 +239,9 @@ fn common_size(format: ClipFormat, files: &[FrameFiles]) -> Result<(usize, usize
 fn clip_intrinsics(dir: &Path, format: ClipFormat, size: (usize, usize)) -> Result<Intrinsics> {
     let file = dir.join(INTRINSICS_FILE);
     if file.exists() {
-        return read_intrinsics(&file);
+        let k = read_intrinsics(&file)?;
+        check_intrinsics(&k, Some(size)).map_err(|problem| DataError::invalid(&file, problem))?;
+        return Ok(k);
     }
     let (camera, valid_size) = format.default_camera();
     if size != valid_size {

@@ -1,6 +1,7 @@
 //! Numbered frame files of a clip and the consistency of their numbering.
 
 use std::collections::BTreeMap;
+use std::fmt::Write as _;
 use std::fs;
 use std::path::{Path, PathBuf};
 
@@ -135,14 +136,35 @@ fn check_numbering(clip: &Path, layout: &Layout, numbers: &BTreeMap<u64, PathBuf
         );
         return Err(DataError::frames(clip, problem));
     }
-    let gaps: Vec<PathBuf> = (first..=last)
-        .step_by(layout.step as usize)
-        .filter(|n| !numbers.contains_key(n))
-        .flat_map(|n| [layout.image_path(clip, n), layout.depth_path(clip, n)])
-        .collect();
-    if gaps.is_empty() {
-        Ok(())
-    } else {
-        Err(DataError::frames(clip, format!("frame numbering has gaps: missing {}", list_paths(&gaps))))
+    // Count the gaps before listing any: one stray file numbered 99999999 must not make us build
+    // a hundred million paths.
+    let expected = ((last - first) / layout.step).saturating_add(1);
+    let present = numbers.len() as u64;
+    if expected == present {
+        return Ok(());
     }
+    let missing = expected - present;
+    let shown: Vec<u64> =
+        (first..=last).step_by(layout.step as usize).filter(|n| !numbers.contains_key(n)).take(4).collect();
+    let paths: Vec<PathBuf> =
+        shown.iter().flat_map(|&n| [layout.image_path(clip, n), layout.depth_path(clip, n)]).collect();
+    let more = if missing > shown.len() as u64 {
+        format!(" and {} more frames", missing - shown.len() as u64)
+    } else {
+        String::new()
+    };
+    let mut problem = format!("frame numbering has gaps: missing {}{more}", list_paths(&paths));
+    if missing > present {
+        // More holes than frames: most likely one stray, far-numbered file at either end.
+        let keys: Vec<u64> = numbers.keys().copied().collect();
+        let n = keys.len();
+        let stray = if keys[n - 1] - keys[n - 2] >= keys[1] - keys[0] { last } else { first };
+        let _ = write!(
+            problem,
+            "; {} (frame {stray}) lies far from the other {} frames: remove or renumber it",
+            numbers[&stray].display(),
+            present - 1
+        );
+    }
+    Err(DataError::frames(clip, problem))
 }

@@ -14,6 +14,7 @@
 
 mod clip;
 mod csv;
+mod depth;
 mod discover;
 mod error;
 mod frames;
@@ -27,7 +28,11 @@ mod write;
 mod tests;
 
 pub use clip::{Clip, ClipFormat, Frame};
-pub use csv::{read_intrinsics, read_poses, write_intrinsics, write_poses, INTRINSICS_FILE, POSES_FILE};
+pub use csv::{
+    read_intrinsics, read_poses, write_intrinsics, write_poses, BOTTOM_ROW_TOLERANCE, FOCAL_RANGE_IN_WIDTHS,
+    INTRINSICS_FILE, MAX_TRANSLATION, POSES_FILE, PRINCIPAL_POINT_SLACK, ROTATION_TOLERANCE,
+};
+pub use depth::{DepthStats, MAX_PLAUSIBLE_DEPTH, MIN_PLAUSIBLE_DEPTH, SUSPICIOUS_DEPTH_SHARE};
 pub use discover::find_clips;
 pub use error::{DataError, Result};
 pub use io::{

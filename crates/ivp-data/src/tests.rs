@@ -228,6 +228,33 @@ fn gap_in_frame_numbers_is_named() {
 }
 
 #[test]
+fn stray_far_numbered_frame_is_refused_without_allocating() {
+    for number in ["99999999", "18446744073709551615"] {
+        let dir = temp();
+        write_tiny_clip(dir.path(), 3);
+        let stray = dir.path().join(format!("rgb/{number}.png"));
+        fs::copy(dir.path().join("rgb/0000.png"), &stray).unwrap();
+        fs::copy(dir.path().join("depth/0000.exr"), dir.path().join(format!("depth/{number}.exr"))).unwrap();
+        let start = std::time::Instant::now();
+        let err = open_err(dir.path());
+        assert!(start.elapsed().as_secs_f64() < 1.0, "listing the gaps took {:?}", start.elapsed());
+        assert_message(&err, &stray, &["gaps", "rgb/0003.png", "more frames", "lies far from the other 3 frames"]);
+    }
+    // A stray below the others is named too.
+    let dir = temp();
+    write_tiny_clip(dir.path(), 3);
+    for n in 0..3 {
+        for (sub, ext) in [("rgb", "png"), ("depth", "exr")] {
+            let from = dir.path().join(format!("{sub}/{n:04}.{ext}"));
+            fs::rename(&from, dir.path().join(format!("{sub}/{}.{ext}", 50_000_000 + n))).unwrap();
+        }
+    }
+    fs::copy(dir.path().join("rgb/50000000.png"), dir.path().join("rgb/0000.png")).unwrap();
+    fs::copy(dir.path().join("depth/50000000.exr"), dir.path().join("depth/0000.exr")).unwrap();
+    assert_message(&open_err(dir.path()), &dir.path().join("rgb/0000.png"), &["(frame 0) lies far from"]);
+}
+
+#[test]
 fn extra_image_frame_is_named() {
     let dir = temp();
     write_tiny_clip(dir.path(), 3);
@@ -635,4 +662,109 @@ fn find_clips_refuses_missing_or_empty_roots() {
     assert_message(&err, root.path(), &["no clip"]);
     let missing = root.path().join("missing");
     assert_message(&find_clips(&missing).unwrap_err(), &missing, &["cannot open"]);
+}
+
+// ---------------------------------------------------------------------------------------------
+// Trust: depth, rigid poses, plausible intrinsics
+
+/// Overwrites the depth of frame `n` of a tiny clip with `values` repeated over the frame.
+fn overwrite_depth(dir: &Path, n: usize, values: &[f32]) -> PathBuf {
+    let path = dir.join("depth").join(format!("{n:04}.exr"));
+    let depth = DepthMap::from_fn(W, H, |u, v| [values[(v * W + u) % values.len()]]);
+    write_depth_exr(&path, &depth).unwrap();
+    path
+}
+
+#[test]
+fn frame_without_usable_depth_is_refused_naming_the_file() {
+    let dir = temp();
+    write_tiny_clip(dir.path(), 2);
+    for (values, what) in [
+        (vec![f32::NAN], "NaN"),
+        (vec![f32::INFINITY], "sky"),
+        (vec![0.0], "missing"),
+        (vec![-1.0], "negative"),
+        (vec![1e-9], "tiny"),
+        (vec![1e9], "huge"),
+    ] {
+        let path = overwrite_depth(dir.path(), 1, &values);
+        let clip = Clip::open(dir.path()).unwrap();
+        let err = clip.load_frame(1).expect_err(what);
+        assert_message(&err, &path, &["no usable depth"]);
+        assert_eq!(clip.depth_stats(1).unwrap().usable, 0, "{what}: counted without an error");
+        assert!(clip.load_frame(0).is_ok());
+    }
+}
+
+#[test]
+fn depth_counts_are_exposed_per_frame() {
+    let dir = temp();
+    write_tiny_clip(dir.path(), 1);
+    // 48 pixels: 12 each of usable, sky, missing, NaN.
+    overwrite_depth(dir.path(), 0, &[2.0, f32::INFINITY, 0.0, f32::NAN]);
+    let clip = Clip::open(dir.path()).unwrap();
+    let (depth, stats) = clip.load_depth_with_stats(0).unwrap();
+    assert_eq!(depth.len(), 48);
+    assert_eq!(stats, DepthStats { pixels: 48, usable: 12, far: 12, missing: 12, implausible: 0, invalid: 12 });
+    assert!(stats.is_suspicious(), "a quarter of the frame is NaN");
+    // The tiny frames of `write_tiny_clip` hold one NaN and one +inf: counted, not suspicious.
+    let dir = temp();
+    write_tiny_clip(dir.path(), 1);
+    let (_, stats) = Clip::open(dir.path()).unwrap().load_depth_with_stats(0).unwrap();
+    assert_eq!((stats.usable, stats.far, stats.invalid), (46, 1, 1));
+    assert!(!stats.is_suspicious());
+}
+
+fn pose_row(m: DMat4) -> String {
+    WorldToCamera(m).to_row_major().iter().map(|x| format!("{x:?}")).collect::<Vec<_>>().join(",")
+}
+
+#[test]
+fn non_rigid_poses_are_refused_with_their_line() {
+    let dir = temp();
+    write_tiny_clip(dir.path(), 2);
+    let rigid = tiny_pose(3).0;
+    let path = dir.path().join(POSES_FILE);
+    for (bad, fragment) in [
+        (DMat4::from_scale(DVec3::splat(1.5)) * rigid, "not orthonormal"),
+        (DMat4::from_scale(DVec3::new(1.0, 1.0, 1.01)) * rigid, "not orthonormal"),
+        (DMat4::from_scale(DVec3::new(1.0, -1.0, 1.0)) * rigid, "determinant -1"),
+        (DMat4::from_translation(DVec3::new(1e300, 0.0, 0.0)) * rigid, "translation"),
+        (DMat4::from_translation(DVec3::new(0.0, 2e5, 0.0)) * rigid, "implausible"),
+    ] {
+        write_poses_csv(dir.path(), &format!("{IDENTITY_ROW}\n{}\n", pose_row(bad)));
+        assert_message(&open_err(dir.path()), &path, &["line 2", fragment]);
+    }
+    let mut bottom = rigid;
+    bottom.x_axis.w = 0.01;
+    write_poses_csv(dir.path(), &format!("{}\n{IDENTITY_ROW}\n", pose_row(bottom)));
+    assert_message(&open_err(dir.path()), &path, &["line 1", "bottom row"]);
+    // Rounding to 7 significant digits (a float32 export) stays within the tolerance.
+    let rounded: Vec<String> = rigid.transpose().to_cols_array().iter().map(|x| format!("{x:.6e}")).collect();
+    write_poses_csv(dir.path(), &format!("{IDENTITY_ROW}\n{}\n", rounded.join(",")));
+    Clip::open(dir.path()).unwrap();
+    let err = write_clip(dir.path(), &[tiny_frame(W, H, 0)], &[WorldToCamera(rigid * 2.0)], Some(&tiny_intrinsics()))
+        .unwrap_err();
+    assert!(err.to_string().contains("not a rigid transform"), "{err}");
+}
+
+#[test]
+fn implausible_intrinsics_are_refused_saying_why() {
+    let dir = temp();
+    write_tiny_clip(dir.path(), 2);
+    let path = dir.path().join(INTRINSICS_FILE);
+    for (text, fragment) in [
+        ("0.3,0,0.5\n0,0.35,0.5\n0,0,1\n", "looks like normalised intrinsics"),
+        ("0.2,0,4\n0,10,3\n0,0,1\n", "fx 0.2 is implausibly small"),
+        ("1e300,0,4\n0,10,3\n0,0,1\n", "fx 1e300 is implausibly large"),
+        ("10,0,4\n0,1000,3\n0,0,1\n", "fy 1e3 is implausibly large"),
+        ("10,0,40\n0,10,3\n0,0,1\n", "cx 40 lies outside the 8x6 frame"),
+        ("10,0,4\n0,10,-3\n0,0,1\n", "cy -3 lies outside"),
+    ] {
+        fs::write(&path, text).unwrap();
+        assert_message(&open_err(dir.path()), &path, &[fragment]);
+    }
+    // A little outside the frame is fine (a cropped image).
+    fs::write(&path, "10,0,8.5\n0,10,-0.5\n0,0,1\n").unwrap();
+    Clip::open(dir.path()).unwrap();
 }

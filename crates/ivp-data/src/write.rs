@@ -75,7 +75,7 @@ fn check_clip_arguments(
         check_pose(pose).map_err(|p| DataError::invalid(dir, format!("frame {n}: {p}")))?;
     }
     match intrinsics {
-        Some(k) => check_intrinsics(k).map_err(|p| DataError::invalid(dir, p)),
+        Some(k) => check_intrinsics(k, Some(size)).map_err(|p| DataError::invalid(dir, p)),
         None if size != (1920, 1080) => Err(DataError::invalid(
             dir,
             format!(

@@ -8,18 +8,53 @@
 //!   (the samples of a step are a function of the seed and the step alone).
 //!
 //! Both are written atomically (temporary file, then rename): a crash never leaves half a file.
+//!
+//! Reading refuses what cannot be right before anything is built from it: a width multiplier that
+//! is not a multiple of 1/64 in `(0, 4]` ([`check_width_mult`]), encoder widths that differ from
+//! the stored tensors' (checked before the network is allocated), and tensors that are not finite
+//! (each error names the tensor and the file). Weights loaded to run or export (`load_model`,
+//! `export_model`) must also stay within [`MAX_ABS_WEIGHT`].
 
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
 use candle_core::{Device, Tensor};
 use candle_nn::{VarBuilder, VarMap};
-use ivp_core::nn::model::{named_parameters, IvpNet, ModelConfig};
+use ivp_core::nn::model::{named_parameters, IvpNet, ModelConfig, ENCODER_WIDTHS};
 use ivp_core::nn::optim::Adam;
 
 /// Written to `ivp.format`; a file of another format is refused with a clear message.
 pub const MODEL_FORMAT: &str = "ivp-model-1";
 pub const CHECKPOINT_FORMAT: &str = "ivp-checkpoint-1";
+
+/// Width multipliers are multiples of this: every encoder width (64, 128, 256 times the
+/// multiplier) is then a whole number, as `torch_reference.py` builds them.
+pub const WIDTH_MULT_STEP: f64 = 1.0 / 64.0;
+
+/// The largest width multiplier (encoder widths up to 1024), as training and `ivp bench` allow.
+pub const MAX_WIDTH_MULT: f64 = 4.0;
+
+/// A parameter beyond this magnitude is not a trained weight: PyTorch's initial bounds are below 1
+/// and trained weights of this network stay within about 10.
+pub const MAX_ABS_WEIGHT: f32 = 1e6;
+
+/// Why a width multiplier cannot be right, if it cannot: it must be a multiple of
+/// [`WIDTH_MULT_STEP`] in `(0, MAX_WIDTH_MULT]`.
+pub fn check_width_mult(m: f64) -> Result<(), String> {
+    let steps = m / WIDTH_MULT_STEP;
+    if !(m.is_finite() && m > 0.0 && m <= MAX_WIDTH_MULT) {
+        return Err(format!("width multiplier {m} is out of range: it must be in (0, {MAX_WIDTH_MULT}]"));
+    }
+    if (steps - steps.round()).abs() > 1e-9 * steps.max(1.0) {
+        let widths: Vec<String> = ENCODER_WIDTHS.iter().map(|&c| format!("{}", c as f64 * m)).collect();
+        return Err(format!(
+            "width multiplier {m} gives encoder widths [{}] that are not whole numbers: it must be a multiple \
+             of 1/64 ({WIDTH_MULT_STEP})",
+            widths.join(", ")
+        ));
+    }
+    Ok(())
+}
 
 #[derive(Debug, thiserror::Error)]
 pub enum CheckpointError {
@@ -126,6 +161,13 @@ fn read_model(path: &Path) -> Result<ModelParts, CheckpointError> {
     let config = model_config_from(path, &metadata)?;
     let mut tensors = tensors_of(path, &bytes)?;
     tensors.retain(|name, _| !name.starts_with("adam."));
+    // Weights to run or export must also be of a plausible magnitude. (A checkpoint to resume
+    // from need only be finite: the training loop's guard reports a run that diverges.)
+    let mut names: Vec<&String> = tensors.keys().collect();
+    names.sort();
+    for name in names {
+        check_values(name, &tensors[name], MAX_ABS_WEIGHT).map_err(|problem| invalid(path, problem))?;
+    }
     let net = network_from(path, &tensors, config)?.detached();
     let step = metadata.get("ivp.step").and_then(|s| s.parse().ok());
     Ok((net, config, tensors, step))
@@ -138,6 +180,7 @@ pub fn network_from(
     tensors: &HashMap<String, Tensor>,
     config: ModelConfig,
 ) -> Result<IvpNet, CheckpointError> {
+    check_encoder_widths(path, tensors, config)?;
     let (net, varmap) = IvpNet::seeded(config, 0).map_err(|e| invalid(path, e.to_string()))?;
     let expected = named_parameters(&varmap);
     for (name, var) in &expected {
@@ -156,6 +199,34 @@ pub fn network_from(
         return Err(invalid(path, format!("unexpected tensor `{extra}` for a {config:?} network")));
     }
     Ok(net)
+}
+
+/// The output widths of `e1 .. e5` as stored must be those of `config`: checked before the network
+/// is allocated, so that metadata claiming a huge width cannot make us build it.
+fn check_encoder_widths(
+    path: &Path,
+    tensors: &HashMap<String, Tensor>,
+    config: ModelConfig,
+) -> Result<(), CheckpointError> {
+    let widths = config.encoder_widths();
+    for (i, &width) in widths.iter().enumerate() {
+        let name = format!("e{}.weight", i + 1);
+        let Some(t) = tensors.get(&name) else {
+            return Err(invalid(path, format!("parameter `{name}` is missing (a {config:?} network needs it)")));
+        };
+        if t.dims().first() != Some(&width) {
+            return Err(invalid(
+                path,
+                format!(
+                    "parameter `{name}` has shape {:?}, but the metadata (width multiplier {}) gives encoder widths \
+                     {widths:?}: the metadata does not match the weights",
+                    t.dims(),
+                    config.width_mult
+                ),
+            ));
+        }
+    }
+    Ok(())
 }
 
 /// Copies named parameters into the variables of `varmap` (for a resumed run).
@@ -202,9 +273,7 @@ fn model_config_from(path: &Path, metadata: &HashMap<String, String>) -> Result<
     let variant = get("ivp.variant")?.parse().map_err(|e: String| invalid(path, e))?;
     let width_mult: f64 =
         get("ivp.width_mult")?.parse().map_err(|_| invalid(path, "metadata `ivp.width_mult` is not a number"))?;
-    if !(width_mult > 0.0 && width_mult.is_finite()) {
-        return Err(invalid(path, format!("metadata `ivp.width_mult` is {width_mult}, expected a positive number")));
-    }
+    check_width_mult(width_mult).map_err(|problem| invalid(path, format!("metadata `ivp.width_mult`: {problem}")))?;
     Ok(ModelConfig { variant, width_mult })
 }
 
@@ -243,10 +312,112 @@ fn tensors_of(path: &Path, bytes: &[u8]) -> Result<HashMap<String, Tensor>, Chec
     // Reads (and so checks) every tensor's data, not only the header.
     let tensors = candle_core::safetensors::load_buffer(bytes, &Device::Cpu)
         .map_err(|e| invalid(path, format!("not a readable safetensors file (truncated or corrupt?): {e}")))?;
-    for (name, t) in &tensors {
+    let mut names: Vec<&String> = tensors.keys().collect();
+    names.sort();
+    for name in names {
+        let t = &tensors[name];
         if t.dtype() != candle_core::DType::F32 {
             return Err(invalid(path, format!("tensor `{name}` is {:?}, expected f32", t.dtype())));
         }
+        check_values(name, t, f32::MAX).map_err(|problem| invalid(path, problem))?;
     }
     Ok(tensors)
+}
+
+/// Why the values of a tensor cannot be weights, if they cannot: not finite, or beyond `bound`.
+fn check_values(name: &str, t: &Tensor, bound: f32) -> Result<(), String> {
+    let values = t.flatten_all().and_then(|t| t.to_vec1::<f32>()).map_err(|e| format!("tensor `{name}`: {e}"))?;
+    let non_finite = values.iter().filter(|v| !v.is_finite()).count();
+    if non_finite > 0 {
+        return Err(format!(
+            "tensor `{name}` has {non_finite} non-finite values (NaN or infinite) of {}: the weights are broken",
+            values.len()
+        ));
+    }
+    if let Some(big) = values.iter().copied().find(|v| v.abs() > bound) {
+        return Err(format!(
+            "tensor `{name}` holds {big:e}, beyond the plausible magnitude {bound:e} of a weight: the weights are broken"
+        ));
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use ivp_core::nn::model::Variant;
+
+    const SMALL: ModelConfig = ModelConfig { variant: Variant::Full, width_mult: 0.125 };
+
+    /// A model file of `SMALL`, rewritten with `edit` applied to its tensors and metadata.
+    fn model_file(
+        dir: &Path,
+        edit: impl FnOnce(&mut HashMap<String, Tensor>, &mut HashMap<String, String>),
+    ) -> PathBuf {
+        let path = dir.join("model.safetensors");
+        let (_, varmap) = IvpNet::seeded(SMALL, 3).unwrap();
+        save_model(&path, &varmap, &SMALL, Some(7)).unwrap();
+        let (mut tensors, mut metadata) = read(&path, MODEL_FORMAT).unwrap();
+        edit(&mut tensors, &mut metadata);
+        write(&path, tensors.into_iter().collect(), metadata).unwrap();
+        path
+    }
+
+    fn load_err(path: &Path) -> String {
+        let Err(err) = load_model(path) else { panic!("the model file should be refused") };
+        let err = err.to_string();
+        assert!(err.contains(&path.display().to_string()), "the message does not name the file: {err}");
+        err
+    }
+
+    #[test]
+    fn a_sound_model_file_loads() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = model_file(dir.path(), |_, _| {});
+        assert_eq!(load_model(&path).unwrap().1, SMALL);
+    }
+
+    #[test]
+    fn width_multipliers_must_give_whole_widths() {
+        for m in [0.25, 0.125, 1.0, 1.0 / 64.0, 4.0, 0.75] {
+            check_width_mult(m).unwrap();
+        }
+        for m in [0.1, 0.3, 1e9, 4.5, 0.0, -1.0, f64::NAN, f64::INFINITY] {
+            assert!(check_width_mult(m).is_err(), "{m}");
+        }
+        assert!(check_width_mult(0.1).unwrap_err().contains("not whole numbers"));
+    }
+
+    #[test]
+    fn metadata_is_checked_against_the_weights_before_building() {
+        let dir = tempfile::tempdir().unwrap();
+        for (m, fragment) in [("1e9", "out of range"), ("0.1", "not whole numbers"), ("0.25", "does not match")] {
+            let path = model_file(dir.path(), |_, meta| {
+                meta.insert("ivp.width_mult".into(), m.into());
+            });
+            let err = load_err(&path);
+            assert!(err.contains(fragment), "{m}: {err}");
+        }
+        let path = model_file(dir.path(), |_, meta| {
+            meta.insert("ivp.variant".into(), "intensity".into());
+        });
+        // The variant changes a few layers' channels, not the widths: the strict load names one.
+        let err = load_err(&path);
+        assert!(err.contains("has shape") && err.contains("expected"), "{err}");
+    }
+
+    #[test]
+    fn broken_weights_are_refused_naming_the_tensor() {
+        let dir = tempfile::tempdir().unwrap();
+        for (value, fragment) in [(f32::NAN, "non-finite"), (f32::INFINITY, "non-finite"), (1e30, "1e30")] {
+            let path = model_file(dir.path(), |tensors, _| {
+                let t = &tensors["e3.bias"];
+                let mut v = t.to_vec1::<f32>().unwrap();
+                v[1] = value;
+                tensors.insert("e3.bias".into(), Tensor::from_vec(v, t.dims(), &Device::Cpu).unwrap());
+            });
+            let err = load_err(&path);
+            assert!(err.contains("tensor `e3.bias`") && err.contains(fragment), "{value}: {err}");
+        }
+    }
 }

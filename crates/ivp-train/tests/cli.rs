@@ -139,6 +139,96 @@ fn check_diagnoses_opengl_axes() {
     assert!(stdout.contains("OpenGL axes (y up"), "{stdout}");
 }
 
+#[test]
+fn check_names_unusable_depth_instead_of_blaming_the_poses() {
+    let tmp = tempfile::tempdir().unwrap();
+    clip_with_poses(&blender_dev().join("clip_000"), tmp.path(), |e| *e);
+    let depth_file = tmp.path().join("depth/0001.exr");
+    let (w, h) = (320, 240);
+    for (value, what) in [(f32::NAN, "NaN"), (f32::INFINITY, "sky"), (0.0, "zero"), (-1.0, "negative"), (1e-9, "tiny")]
+    {
+        ivp_data::write_depth_exr(&depth_file, &ivp_core::DepthMap::filled(w, h, [value])).unwrap();
+        let out = ivp(&["check", "--clip", s(tmp.path())]);
+        let stdout = String::from_utf8_lossy(&out.stdout);
+        assert!(!out.status.success(), "{what}: {stdout}");
+        assert!(stdout.contains("PROBLEM: no usable depth in 1 of"), "{what}: {stdout}");
+        assert!(stdout.contains(s(&depth_file)) && stdout.contains("NO USABLE DEPTH"), "{what}: {stdout}");
+        assert!(!stdout.contains("fits best if"), "{what}: {stdout}");
+    }
+    // A quarter of a frame NaN: usable, reported per frame, and the readings are still compared.
+    let real = ivp_data::read_depth_exr(blender_dev().join("clip_000/depth/0001.exr")).unwrap();
+    let mut depth = real.clone();
+    for (i, z) in depth.pixels_mut().iter_mut().enumerate() {
+        if i % 4 == 0 {
+            *z = [f32::NAN];
+        }
+    }
+    ivp_data::write_depth_exr(&depth_file, &depth).unwrap();
+    let stdout = String::from_utf8_lossy(&ivp(&["check", "--clip", s(tmp.path())]).stdout).into_owned();
+    assert!(stdout.contains("frame    1: suspicious depth") && stdout.contains("25.0% invalid"), "{stdout}");
+    assert!(stdout.contains("warping frames"), "{stdout}");
+
+    // `eval` and `warp` refuse the frame with an error naming the file, instead of scoring holes.
+    ivp_data::write_depth_exr(&depth_file, &ivp_core::DepthMap::filled(w, h, [f32::NAN])).unwrap();
+    let out = ivp(&["warp", "--clip", s(tmp.path()), "--from", "1", "--to", "2", "--out", s(&tmp.path().join("w"))]);
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains(s(&depth_file)) && err.contains("no usable depth"), "{err}");
+}
+
+#[test]
+fn check_names_non_rigid_poses_and_bad_intrinsics() {
+    let tmp = tempfile::tempdir().unwrap();
+    let scale = glam::DMat4::from_scale(glam::DVec3::splat(1.2));
+    clip_with_poses(&blender_dev().join("clip_001"), tmp.path(), |e| WorldToCamera(scale * e.0));
+    let out = ivp(&["check", "--clip", s(tmp.path())]);
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(!out.status.success(), "{stdout}");
+    assert!(stdout.contains("PROBLEM") && stdout.contains("not a rigid transform"), "{stdout}");
+    assert!(stdout.contains(s(&tmp.path().join(POSES_FILE))) && stdout.contains("line 1"), "{stdout}");
+
+    clip_with_poses(&blender_dev().join("clip_001"), tmp.path(), |e| *e);
+    let k = tmp.path().join("CameraIntrinsics.csv");
+    std::fs::write(&k, "0.9,0,0.5\n0,1.2,0.5\n0,0,1\n").unwrap();
+    let out = ivp(&["check", "--clip", s(tmp.path())]);
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(!out.status.success(), "{stdout}");
+    assert!(stdout.contains("normalised intrinsics; give them in pixels") && stdout.contains(s(&k)), "{stdout}");
+}
+
+#[test]
+fn a_stray_far_numbered_frame_is_named_at_once() {
+    let tmp = tempfile::tempdir().unwrap();
+    clip_with_poses(&blender_dev().join("clip_000"), tmp.path(), |e| *e);
+    let stray = tmp.path().join("rgb/99999999.png");
+    std::fs::copy(tmp.path().join("rgb/0000.png"), &stray).unwrap();
+    std::fs::copy(tmp.path().join("depth/0000.exr"), tmp.path().join("depth/99999999.exr")).unwrap();
+    let start = std::time::Instant::now();
+    let out = ivp(&["warp", "--clip", s(tmp.path()), "--from", "0", "--to", "1", "--out", s(&tmp.path().join("w"))]);
+    assert!(!out.status.success());
+    assert!(start.elapsed().as_secs_f64() < 10.0, "took {:?}", start.elapsed());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains(s(&stray)) && err.contains("lies far from"), "{err}");
+}
+
+#[test]
+fn eval_refuses_a_model_with_broken_weights() {
+    use ivp_core::nn::model::{IvpNet, ModelConfig, Variant};
+    let tmp = tempfile::tempdir().unwrap();
+    let config = ModelConfig { variant: Variant::Full, width_mult: 0.125 };
+    let (_, varmap) = IvpNet::seeded(config, 1).unwrap();
+    let model = tmp.path().join("broken.safetensors");
+    let vars = varmap.data().lock().unwrap();
+    let bias = &vars["e2.bias"];
+    bias.set(&(bias.as_tensor() * f64::NAN).unwrap()).unwrap();
+    drop(vars);
+    ivp_train::checkpoint::save_model(&model, &varmap, &config, None).unwrap();
+    let out = ivp(&["eval", "--data", s(&blender_dev().join("clip_000")), "--methods", "fill", "--model", s(&model)]);
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains(s(&model)) && err.contains("tensor `e2.bias`") && err.contains("non-finite"), "{err}");
+}
+
 /// Files under `dir`, relative, with their bytes.
 fn tree(dir: &Path) -> Vec<(PathBuf, Vec<u8>)> {
     let mut out = Vec::new();

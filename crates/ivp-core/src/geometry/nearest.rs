@@ -30,8 +30,8 @@ impl NearestKnown {
     pub fn new(width: usize, height: usize, known: &[bool]) -> Self {
         assert_eq!(known.len(), width * height, "known mask does not match {width}x{height}");
         assert!(width < Self::NONE as usize && height < Self::NONE as usize, "frame too large");
-        let (left, right) = Self::along_rows(width, known);
-        let (up, down) = Self::along_columns(width, height, known);
+        let ((left, right), (up, down)) =
+            rayon::join(|| Self::along_rows(width, known), || Self::along_columns(width, height, known));
         Self { width, height, left, right, up, down }
     }
 
@@ -61,26 +61,34 @@ impl NearestKnown {
     }
 
     fn along_columns(width: usize, height: usize, known: &[bool]) -> (Vec<u32>, Vec<u32>) {
-        let mut up = vec![Self::NONE; known.len()];
-        let mut down = vec![Self::NONE; known.len()];
-        // Each row follows from the one before it (above for `up`, below for `down`).
-        for v in 1..height {
-            let (done, row) = up.split_at_mut(v * width);
-            let previous = &done[(v - 1) * width..];
-            let previous_known = &known[(v - 1) * width..v * width];
-            for u in 0..width {
-                row[u] = if previous_known[u] { (v - 1) as u32 } else { previous[u] };
-            }
-        }
-        for v in (0..height.saturating_sub(1)).rev() {
-            let (row, done) = down.split_at_mut((v + 1) * width);
-            let row = &mut row[v * width..];
-            let next_known = &known[(v + 1) * width..(v + 2) * width];
-            for u in 0..width {
-                row[u] = if next_known[u] { (v + 1) as u32 } else { done[u] };
-            }
-        }
-        (up, down)
+        // Each row follows from the one before it (above for `up`, below for `down`): the two
+        // sweeps are serial in rows, so they run side by side.
+        rayon::join(
+            || {
+                let mut up = vec![Self::NONE; known.len()];
+                for v in 1..height {
+                    let (done, row) = up.split_at_mut(v * width);
+                    let previous = &done[(v - 1) * width..];
+                    let previous_known = &known[(v - 1) * width..v * width];
+                    for u in 0..width {
+                        row[u] = if previous_known[u] { (v - 1) as u32 } else { previous[u] };
+                    }
+                }
+                up
+            },
+            || {
+                let mut down = vec![Self::NONE; known.len()];
+                for v in (0..height.saturating_sub(1)).rev() {
+                    let (row, done) = down.split_at_mut((v + 1) * width);
+                    let row = &mut row[v * width..];
+                    let next_known = &known[(v + 1) * width..(v + 2) * width];
+                    for u in 0..width {
+                        row[u] = if next_known[u] { (v + 1) as u32 } else { done[u] };
+                    }
+                }
+                down
+            },
+        )
     }
 
     pub fn width(&self) -> usize {

@@ -70,7 +70,8 @@ impl VectorPredictor for IvpNet {
             };
             from_tensor(&self.raw_output(&input)?)
         };
-        run().map_err(|e| InfillError::Other(format!("network: {e}")))
+        let vectors = run().map_err(|e| InfillError::Other(format!("network: {e}")))?;
+        tiles::ensure_finite_vectors(vectors, holes)
     }
 }
 

@@ -287,8 +287,24 @@ impl VectorPredictor for TiledPredictor<'_> {
             self.dense_passes.fetch_add(1, Ordering::Relaxed);
             return self.net.predict(prior, depth, holes);
         }
-        self.predict_tiles(prior, depth, holes, &tiles).map_err(|e| InfillError::Other(format!("network: {e}")))
+        let vectors =
+            self.predict_tiles(prior, depth, holes, &tiles).map_err(|e| InfillError::Other(format!("network: {e}")))?;
+        ensure_finite_vectors(vectors, holes)
     }
+}
+
+/// Refuses vectors with a NaN or infinite component at a hole pixel: broken weights or inputs
+/// must not pass for a prediction (the iterative infilling would silently fall back to `fill`).
+pub(crate) fn ensure_finite_vectors(vectors: VectorField, holes: &[bool]) -> Result<VectorField, InfillError> {
+    let bad = vectors.pixels().iter().zip(holes).filter(|(v, &hole)| hole && !v.iter().all(|x| x.is_finite())).count();
+    if bad == 0 {
+        return Ok(vectors);
+    }
+    let total = holes.iter().filter(|&&h| h).count();
+    Err(InfillError::Other(format!(
+        "network: {bad} of {total} hole pixels got non-finite vectors (NaN or infinite): the model's weights or \
+         inputs are broken"
+    )))
 }
 
 #[cfg(test)]
@@ -339,6 +355,39 @@ mod tests {
         let prior = VectorField::from_fn(w, h, |u, v| [((u * 7 + v) % 13) as f32 * 0.3 - 2.0, (v % 5) as f32 * 0.4]);
         let depth = DepthMap::from_fn(w, h, |u, v| [if holes[v * w + u] { 0.0 } else { 1.0 + (u as f32 * 0.05) }]);
         (prior, depth, holes)
+    }
+
+    #[test]
+    fn non_finite_vectors_at_holes_are_an_error() {
+        let holes = [false, true, true, false];
+        let ok = VectorField::from_pixels(2, 2, vec![[f32::NAN, 0.0], [1.0, 2.0], [0.5, -3.0], [f32::INFINITY, 0.0]]);
+        assert!(ensure_finite_vectors(ok, &holes).is_ok(), "values outside holes are ignored");
+        for bad in [f32::NAN, f32::INFINITY, f32::NEG_INFINITY] {
+            let v = VectorField::from_pixels(2, 2, vec![[0.0; 2], [1.0, bad], [0.5, -3.0], [0.0; 2]]);
+            let err = ensure_finite_vectors(v, &holes).unwrap_err().to_string();
+            assert!(
+                err.contains("network:") && err.contains("1 of 2 hole pixels") && err.contains("non-finite"),
+                "{err}"
+            );
+        }
+    }
+
+    /// A network whose weights are all NaN: every prediction must be refused, dense or tiled.
+    #[test]
+    fn a_network_with_nan_weights_is_refused_dense_and_tiled() {
+        let (net, varmap) = IvpNet::seeded(ModelConfig { variant: Variant::Full, width_mult: 0.125 }, 5).unwrap();
+        for var in varmap.all_vars() {
+            let nan = Tensor::full(f32::NAN, var.shape(), &Device::Cpu).unwrap();
+            var.set(&nan).unwrap();
+        }
+        let (w, h) = (480, 320);
+        let (prior, depth, holes) = frame(w, h);
+        let err = net.predict(&prior, &depth, &holes).unwrap_err().to_string();
+        assert!(err.contains("non-finite vectors"), "{err}");
+        let tiled = TiledPredictor::new(&net, TileShape::new(32, 80).unwrap());
+        let err = tiled.predict(&prior, &depth, &holes).unwrap_err().to_string();
+        assert!(tiled.tiles_run() > 0, "the sparse path must be the one tested");
+        assert!(err.contains("non-finite vectors"), "{err}");
     }
 
     #[test]

@@ -8,7 +8,7 @@ use clap::Args;
 use ivp_data::samples::{ClipSource, DatasetSource, Sample, SampleConfig, SampleGenerator, Split, SyntheticSource};
 use ivp_data::{generate_dataset, write_rgb_png, Clip, SceneParams};
 
-use crate::check::check_clip;
+use crate::check::{check_clip, CheckReport};
 use crate::eval::DEFAULT_TARGETS;
 use crate::export_warps::{export_targets, write_frame_pair_warp};
 use crate::progress::progress_bar;
@@ -114,7 +114,15 @@ pub fn run_warp(args: WarpArgs, progress: bool) -> Result<()> {
 }
 
 pub fn run_check(args: CheckArgs) -> Result<()> {
-    let clip = Clip::open(&args.clip)?;
+    let clip = match Clip::open(&args.clip) {
+        Ok(clip) => clip,
+        Err(err) => {
+            // An invalid clip (non-rigid pose, implausible intrinsics, frame files) is an answer:
+            // name the cause rather than compare readings of files that cannot be right.
+            println!("PROBLEM: the clip cannot be read as it is: {err}");
+            std::process::exit(1);
+        }
+    };
     let k = clip.intrinsics();
     println!(
         "{}: {} frames of {}x{}, fx {:.2} fy {:.2} cx {:.2} cy {:.2}",
@@ -128,6 +136,11 @@ pub fn run_check(args: CheckArgs) -> Result<()> {
         k.cy
     );
     let report = check_clip(&clip)?;
+    print_depth_report(&report);
+    if report.fits.is_empty() {
+        println!("{}", report.verdict());
+        std::process::exit(1);
+    }
     println!("warping frames {:?} under each reading (mean absolute error on known pixels, 0..255):", report.pairs);
     for fit in &report.fits {
         println!("  {:>8.2}  {:>5.1}% covered  {}", fit.mae, 100.0 * fit.known_fraction, fit.reading.describe());
@@ -139,6 +152,27 @@ pub fn run_check(args: CheckArgs) -> Result<()> {
         std::process::exit(1);
     }
     Ok(())
+}
+
+/// Depth per frame: one line for the whole clip, then one for each frame with unusable, invalid or
+/// implausible values (at most `SHOWN`, the worst cases first in frame order).
+fn print_depth_report(report: &CheckReport) {
+    const SHOWN: usize = 20;
+    println!("depth of {} frames: {}", report.depth.len(), report.total_depth().summary());
+    let flagged: Vec<_> = report.depth.iter().filter(|d| !d.stats.is_usable() || d.stats.bad() > 0).collect();
+    for d in flagged.iter().take(SHOWN) {
+        let label = if !d.stats.is_usable() {
+            "NO USABLE DEPTH"
+        } else if d.stats.is_suspicious() {
+            "suspicious depth"
+        } else {
+            "some invalid depth"
+        };
+        println!("  frame {:>4}: {label}: {} ({})", d.frame, d.stats.summary(), d.path.display());
+    }
+    if flagged.len() > SHOWN {
+        println!("  ... and {} more frames with invalid or implausible depth values", flagged.len() - SHOWN);
+    }
 }
 
 pub fn run_generate(args: GenerateArgs, progress: bool) -> Result<()> {
