@@ -36,7 +36,7 @@ pub const FOCAL_RANGE_IN_WIDTHS: (f64, f64) = (0.05, 100.0);
 pub const PRINCIPAL_POINT_SLACK: f64 = 0.1;
 
 /// One pose per non-blank line, 16 row-major numbers each: a finite rigid transform (see
-/// [`check_pose`]). Errors name the file and the line.
+/// `check_pose`). Errors name the file and the line.
 pub fn read_poses(path: &Path) -> Result<Vec<WorldToCamera>> {
     let mut poses = Vec::new();
     for (line, fields) in numeric_rows(path)? {
@@ -97,7 +97,7 @@ pub(crate) fn check_pose(pose: &WorldToCamera) -> Result<(), String> {
 }
 
 /// `K` as 3 rows of 3 numbers: `[[fx, 0, cx], [0, fy, cy], [0, 0, 1]]` with fx, fy > 0. The
-/// checks that need the frame size ([`check_intrinsics`] with a size) are `Clip::open`'s.
+/// checks that need the frame size (`check_intrinsics` with a size) are `Clip::open`'s.
 pub fn read_intrinsics(path: &Path) -> Result<Intrinsics> {
     let rows = numeric_rows(path)?;
     if rows.len() != 3 {

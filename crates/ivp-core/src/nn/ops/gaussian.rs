@@ -29,7 +29,7 @@ const MIN_ROWS_PER_TASK: usize = 16;
 
 /// Filters each channel of `x` (N, C, H, W) with the 11 x 11 Gaussian window of sigma 1.5, zero
 /// padding, same output size; any H, W (also smaller than the window). f32 on the CPU.
-/// Differentiable: the filter is its own adjoint (see [`GaussianBlur::bwd`]).
+/// Differentiable: the filter is its own adjoint (see `GaussianBlur::bwd`).
 pub fn gaussian_blur(x: &Tensor) -> Result<Tensor> {
     if x.dtype() != DType::F32 || !x.device().is_cpu() {
         bail!("gaussian_blur: an f32 tensor on the CPU expected, got {:?} on {:?}", x.dtype(), x.device());
