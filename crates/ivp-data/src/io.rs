@@ -187,20 +187,48 @@ pub fn write_depth_exr(path: impl AsRef<Path>, depth: &DepthMap) -> Result<()> {
 /// holds either its old content or all of the new one. The parent folder must exist.
 ///
 /// No `fsync`: the aim is that readers never see partial files, not durability across power loss,
-/// and syncing every frame would slow down writing datasets considerably.
+/// and syncing every frame would slow down writing datasets considerably. What cannot be made
+/// again cheaply (checkpoints, models) goes through [`write_durably`].
 pub fn write_atomically(path: &Path, bytes: &[u8]) -> Result<()> {
+    write_through_temporary(path, bytes, false)
+}
+
+/// [`write_atomically`], durable across a power cut: the file is flushed to disk before the rename
+/// and the folder after it, so the name holds the old bytes or the new ones, never a renamed but
+/// empty file.
+pub fn write_durably(path: &Path, bytes: &[u8]) -> Result<()> {
+    write_through_temporary(path, bytes, true)
+}
+
+fn write_through_temporary(path: &Path, bytes: &[u8], durable: bool) -> Result<()> {
     let tmp = temporary_sibling(path)?;
     let result = fs::OpenOptions::new()
         .write(true)
         .create_new(true)
         .open(&tmp)
-        .and_then(|mut file| file.write_all(bytes))
+        .and_then(|mut file| file.write_all(bytes).and_then(|()| if durable { file.sync_all() } else { Ok(()) }))
         .map_err(|e| DataError::io(&tmp, "cannot write temporary file", e))
-        .and_then(|()| fs::rename(&tmp, path).map_err(|e| DataError::io(path, "cannot rename temporary file onto", e)));
+        .and_then(|()| fs::rename(&tmp, path).map_err(|e| DataError::io(path, "cannot rename temporary file onto", e)))
+        .and_then(|()| if durable { sync_folder_of(path) } else { Ok(()) });
     if result.is_err() {
         let _ = fs::remove_file(&tmp); // best effort: the original error matters more
     }
     result
+}
+
+/// Makes a rename in the folder of `path` durable (the folder's entry is what the rename wrote).
+fn sync_folder_of(path: &Path) -> Result<()> {
+    let folder = match path.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p,
+        _ => Path::new("."),
+    };
+    // Only Unix can open a folder to sync it; elsewhere the rename is as durable as it gets.
+    if cfg!(unix) {
+        fs::File::open(folder)
+            .and_then(|f| f.sync_all())
+            .map_err(|e| DataError::io(folder, "cannot sync folder", e))?;
+    }
+    Ok(())
 }
 
 /// A name beside `path` unique to this process and call, hidden so that listings ignore it.

@@ -36,8 +36,8 @@ pub use depth::{DepthStats, MAX_PLAUSIBLE_DEPTH, MIN_PLAUSIBLE_DEPTH, SUSPICIOUS
 pub use discover::find_clips;
 pub use error::{DataError, Result};
 pub use io::{
-    pick_depth_channel, read_depth_exr, read_rgb, write_atomically, write_depth_exr, write_gray_png, write_rgb_png,
-    DEPTH_CHANNELS, WRITTEN_DEPTH_CHANNEL,
+    pick_depth_channel, read_depth_exr, read_rgb, write_atomically, write_depth_exr, write_durably, write_gray_png,
+    write_rgb_png, DEPTH_CHANNELS, WRITTEN_DEPTH_CHANNEL,
 };
 pub use samples::{Batch, Sample, SampleConfig, SampleGenerator, SampleStream, StreamOptions};
 pub use scene::{generate_dataset, render_clip, Scene, SceneParams, SyntheticClip};

@@ -768,3 +768,20 @@ fn implausible_intrinsics_are_refused_saying_why() {
     fs::write(&path, "10,0,8.5\n0,10,-0.5\n0,0,1\n").unwrap();
     Clip::open(dir.path()).unwrap();
 }
+
+#[test]
+fn durable_and_atomic_writes_replace_the_whole_file_and_leave_no_temporary_behind() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("model.safetensors");
+    for write in [write_atomically, write_durably] {
+        write(&path, b"first version").unwrap();
+        write(&path, b"second").unwrap();
+        assert_eq!(fs::read(&path).unwrap(), b"second");
+        let names: Vec<String> =
+            fs::read_dir(dir.path()).unwrap().map(|e| e.unwrap().file_name().to_string_lossy().into_owned()).collect();
+        assert_eq!(names, ["model.safetensors"]);
+        // A missing folder is an error that names the file it was writing.
+        let err = write(&dir.path().join("missing/model.safetensors"), b"x").unwrap_err();
+        assert!(err.to_string().contains("missing"), "{err}");
+    }
+}

@@ -7,7 +7,8 @@
 //!   step, Adam's step count and the training configuration as JSON: all a bit-identical resume needs
 //!   (the samples of a step are a function of the seed and the step alone).
 //!
-//! Both are written atomically (temporary file, then rename): a crash never leaves half a file.
+//! Both are written atomically and durably (temporary file flushed to disk, rename, folder
+//! flushed): neither a crash nor a power cut leaves half a file or an empty one.
 //!
 //! Reading refuses what cannot be right before anything is built from it: a width multiplier that
 //! is not a multiple of 1/64 in `(0, 4]` ([`check_width_mult`]), encoder widths that differ from
@@ -284,7 +285,7 @@ fn write(
 ) -> Result<(), CheckpointError> {
     let bytes = safetensors::serialize(tensors, Some(metadata))
         .map_err(|e| invalid(path, format!("cannot serialise tensors: {e}")))?;
-    ivp_data::write_atomically(path, &bytes)?;
+    ivp_data::write_durably(path, &bytes)?;
     Ok(())
 }
 
