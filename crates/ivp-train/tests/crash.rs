@@ -1,0 +1,87 @@
+//! Crash safety: a training run killed with SIGKILL at random moments and resumed each time ends
+//! with the same weights, bit for bit, as a run never interrupted.
+
+use std::path::Path;
+use std::process::{Command, Stdio};
+use std::time::{Duration, Instant};
+
+use rand::{Rng, SeedableRng};
+
+const RECIPE: &str = "width_mult = 0.125\nsteps = 12\nbatch = 2\ncrop = 32\nguide_steps = 4\n\
+                      validation_samples = 2\nlog_every = 1\nvalidate_every = 0\ncheckpoint_every = 2\n";
+
+fn train(config: &Path, out: &Path, resume: bool) -> Command {
+    let mut cmd = Command::new(env!("CARGO_BIN_EXE_ivp"));
+    cmd.args(["--quiet", "--threads", "2", "train", "--synthetic", "--config"]).arg(config).arg("--out").arg(out);
+    if resume {
+        cmd.arg("--resume");
+    }
+    cmd.stdout(Stdio::null()).stderr(Stdio::piped());
+    cmd
+}
+
+/// Every tensor of a model file, by name, as raw bytes.
+fn tensors(path: &Path) -> Vec<(String, Vec<u8>)> {
+    let bytes = std::fs::read(path).unwrap();
+    let file = safetensors::SafeTensors::deserialize(&bytes).unwrap();
+    let mut out: Vec<(String, Vec<u8>)> =
+        file.tensors().into_iter().map(|(name, view)| (name, view.data().to_vec())).collect();
+    out.sort();
+    out
+}
+
+#[test]
+fn a_run_killed_at_random_moments_and_resumed_ends_bit_identical() {
+    let dir = tempfile::tempdir().unwrap();
+    let config = dir.path().join("recipe.toml");
+    std::fs::write(&config, RECIPE).unwrap();
+
+    let whole = dir.path().join("whole");
+    let started = Instant::now();
+    let out = train(&config, &whole, false).output().unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let full_time = started.elapsed();
+
+    // Kill at random moments of the second half of a whole run's length (its first half is mostly
+    // start-up: scenes and the validation set), then let the last attempt finish.
+    let killed = dir.path().join("killed");
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
+    let (mut kills, mut resumes) = (0, 0);
+    for attempt in 0.. {
+        if killed.join("model.safetensors").is_file() {
+            break;
+        }
+        assert!(attempt < 12, "no run finished after {kills} kills");
+        let has_checkpoint = std::fs::read_dir(killed.join("checkpoints")).is_ok_and(|mut d| d.next().is_some());
+        if !has_checkpoint {
+            // Killed before its first checkpoint: nothing to resume, start again.
+            let _ = std::fs::remove_dir_all(&killed);
+        }
+        resumes += usize::from(has_checkpoint);
+        let mut child = train(&config, &killed, has_checkpoint).spawn().unwrap();
+        let wait = if attempt < 6 { full_time.mul_f64(rng.random_range(0.5..1.0)) } else { Duration::from_secs(600) };
+        let deadline = Instant::now() + wait;
+        let mut finished = None;
+        while Instant::now() < deadline {
+            if let Some(status) = child.try_wait().unwrap() {
+                finished = Some(status);
+                break;
+            }
+            std::thread::sleep(Duration::from_millis(5));
+        }
+        match finished {
+            Some(status) => {
+                let stderr = std::io::read_to_string(child.stderr.take().unwrap()).unwrap();
+                assert!(status.success(), "a resumed run failed: {stderr}");
+            }
+            None => {
+                child.kill().unwrap(); // SIGKILL on Unix: no handler runs
+                child.wait().unwrap();
+                kills += 1;
+            }
+        }
+    }
+    eprintln!("{kills} kills, {resumes} resumes from a checkpoint");
+    assert!(kills >= 2 && resumes >= 1, "{kills} kills, {resumes} resumes: the test did not interrupt the run");
+    assert_eq!(tensors(&killed.join("model.safetensors")), tensors(&whole.join("model.safetensors")));
+}
