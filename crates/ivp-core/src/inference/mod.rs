@@ -151,7 +151,11 @@ fn predict_intensity(net: &IvpNet, inputs: &FrameInputs<'_>) -> candle_core::Res
         last: Some(&last),
         last_warped: Some(&last_warped),
     };
-    let mut image = from_tensor(&net.forward(&input)?.frame)?;
+    let mut image: RgbImage = from_tensor(&net.forward(&input)?.frame)?;
+    let bad = image.as_flat().iter().filter(|c| !c.is_finite()).count();
+    if bad > 0 {
+        candle_core::bail!("{bad} non-finite colour values in the predicted frame (broken weights?)");
+    }
     fill_new_regions(&mut image, inputs.holes);
     Ok(image)
 }
@@ -350,6 +354,17 @@ mod tests {
                 ground_truth: None,
             }
         }
+    }
+
+    #[test]
+    fn an_intensity_network_with_nan_weights_is_an_error() {
+        let (net, varmap) = IvpNet::seeded(ModelConfig { variant: Variant::Intensity, width_mult: 0.125 }, 4).unwrap();
+        for var in varmap.all_vars() {
+            var.set(&Tensor::full(f32::NAN, var.shape(), &Device::Cpu).unwrap()).unwrap();
+        }
+        let scene = BoxScene::new();
+        let err = ModelInfiller::new("ivp", net, 3).predict(&scene.context(true)).unwrap_err().to_string();
+        assert!(err.contains("non-finite colour"), "{err}");
     }
 
     #[test]
