@@ -89,6 +89,17 @@ impl<const C: usize> Image<C> {
         &self.pixels[v * self.width..(v + 1) * self.width]
     }
 
+    /// The `width` x `height` window whose top-left pixel is `(left, top)`. Panics if it does not
+    /// lie inside the image.
+    pub fn crop(&self, left: usize, top: usize, width: usize, height: usize) -> Self {
+        assert!(left + width <= self.width && top + height <= self.height, "crop outside the image");
+        let mut pixels = Vec::with_capacity(width * height);
+        for v in top..top + height {
+            pixels.extend_from_slice(&self.row(v)[left..left + width]);
+        }
+        Self::from_pixels(width, height, pixels)
+    }
+
     /// The pixels flattened channel-interleaved (`[r, g, b, r, g, b, ...]`).
     pub fn as_flat(&self) -> &[f32] {
         self.pixels.as_flattened()

@@ -15,9 +15,10 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 
 use candle_core::{DType, Device, Tensor};
 
-use crate::geometry::{DepthMap, VectorField};
+use crate::geometry::{DepthMap, Image, VectorField};
 use crate::infill::{InfillError, VectorPredictor};
 use crate::nn::model::{IvpNet, NetInput};
+use crate::nn::tensor::to_batch_tensor;
 
 /// Tiles start on multiples of this: the U-Net halves its maps four times.
 pub const TILE_ALIGN: usize = 16;
@@ -223,24 +224,18 @@ impl<'a> TiledPredictor<'a> {
         }
         for ((tw, th), group) in by_size {
             for batch in group.chunks(MAX_TILES_PER_BATCH) {
-                let crop = |channels: usize, value: &dyn Fn(usize, usize) -> f32| {
-                    let mut data = vec![0f32; batch.len() * channels * tw * th];
-                    for (tile, planes) in batch.iter().zip(data.chunks_exact_mut(channels * tw * th)) {
-                        for (c, plane) in planes.chunks_exact_mut(tw * th).enumerate() {
-                            for (row, out) in plane.chunks_exact_mut(tw).enumerate() {
-                                let start = (tile.input.y + row) * w + tile.input.x;
-                                for (col, o) in out.iter_mut().enumerate() {
-                                    *o = value(start + col, c);
-                                }
-                            }
-                        }
-                    }
-                    Tensor::from_vec(data, (batch.len(), channels, th, tw), &Device::Cpu)
-                };
-                let (p, d) = (prior.pixels(), depth.pixels());
-                let prior_t = crop(2, &|i, c| p[i][c])?;
-                let depth_t = crop(1, &|i, _| d[i][0])?;
-                let mask_t = crop(1, &|i, _| f32::from(u8::from(holes[i])))?;
+                // Each tile's window of the frame's inputs, stacked into one tensor per input.
+                let priors: Vec<VectorField> = batch.iter().map(|t| prior.crop(t.input.x, t.input.y, tw, th)).collect();
+                let depths: Vec<DepthMap> = batch.iter().map(|t| depth.crop(t.input.x, t.input.y, tw, th)).collect();
+                let masks: Vec<DepthMap> = batch
+                    .iter()
+                    .map(|t| {
+                        Image::from_fn(tw, th, |u, v| [f32::from(u8::from(holes[(t.input.y + v) * w + t.input.x + u]))])
+                    })
+                    .collect();
+                let stack = |images: &[DepthMap]| to_batch_tensor(&images.iter().collect::<Vec<_>>());
+                let prior_t = to_batch_tensor(&priors.iter().collect::<Vec<_>>())?;
+                let (depth_t, mask_t) = (stack(&depths)?, stack(&masks)?);
                 // The vector variants do not read the warped frame before compositing.
                 let unused = Tensor::zeros((batch.len(), 3, th, tw), DType::F32, &Device::Cpu)?;
                 let input = NetInput {

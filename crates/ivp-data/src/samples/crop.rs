@@ -27,11 +27,7 @@ impl CropWindow {
 
     /// The window's pixels of `image`.
     pub fn cut<const C: usize>(&self, image: &Image<C>) -> Image<C> {
-        let mut pixels = Vec::with_capacity(self.size * self.size);
-        for v in self.top..self.top + self.size {
-            pixels.extend_from_slice(&image.row(v)[self.left..self.left + self.size]);
-        }
-        Image::from_pixels(self.size, self.size, pixels)
+        image.crop(self.left, self.top, self.size, self.size)
     }
 
     /// The window's pixels of a row-major per-pixel field of a `width`-wide frame.
