@@ -1,6 +1,6 @@
 //! `ivp infer` and `ivp upsample`: a trained model on one target, or on every other frame of a clip.
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
 use anyhow::{ensure, Result};
 use clap::Args;
@@ -12,25 +12,42 @@ use crate::cli::CoverageArgs;
 use crate::infer;
 use crate::progress::progress_bar;
 
+/// The trained model both commands run, and how.
+#[derive(Args)]
+pub struct ModelArgs {
+    /// A model file (ivp train writes RUN_DIR/model.safetensors).
+    #[arg(long)]
+    model: PathBuf,
+    /// Iterations of the test-time infilling (SPEC §6.5).
+    #[arg(long, default_value_t = ivp_core::infill::DEFAULT_ITERATIONS)]
+    iterations: usize,
+    #[command(flatten)]
+    coverage: CoverageArgs,
+}
+
+impl ModelArgs {
+    /// The model file as method `ivp`.
+    fn infiller(&self) -> Result<ModelInfiller> {
+        ensure!(self.iterations > 0, "--iterations must be at least 1");
+        let coverage = self.coverage.coverage()?;
+        let (net, _) = load_model(&self.model)?;
+        Ok(ModelInfiller::new("ivp", net, self.iterations).with_coverage(coverage))
+    }
+}
+
 #[derive(Args)]
 pub struct InferArgs {
     /// The clip folder.
     #[arg(long)]
     clip: PathBuf,
-    /// A model file (ivp train writes RUN_DIR/model.safetensors).
-    #[arg(long)]
-    model: PathBuf,
     /// The frame to predict (from frames T-1 and T-3).
     #[arg(long)]
     target: usize,
-    /// Iterations of the test-time infilling (SPEC §6.5).
-    #[arg(long, default_value_t = ivp_core::infill::DEFAULT_ITERATIONS)]
-    iterations: usize,
     /// Output folder: infilled.png, holes.png, vectors.png, error.png.
     #[arg(long)]
     out: PathBuf,
     #[command(flatten)]
-    coverage: CoverageArgs,
+    model: ModelArgs,
 }
 
 #[derive(Args)]
@@ -38,21 +55,15 @@ pub struct UpsampleArgs {
     /// The clip folder; its even frames are taken as rendered.
     #[arg(long)]
     clip: PathBuf,
-    /// A model file (ivp train writes RUN_DIR/model.safetensors).
-    #[arg(long)]
-    model: PathBuf,
-    /// Iterations of the test-time infilling (SPEC §6.5).
-    #[arg(long, default_value_t = ivp_core::infill::DEFAULT_ITERATIONS)]
-    iterations: usize,
     /// Output folder: frames/NNNN.png and preview.gif.
     #[arg(long)]
     out: PathBuf,
     #[command(flatten)]
-    coverage: CoverageArgs,
+    model: ModelArgs,
 }
 
 pub fn run_infer(args: InferArgs) -> Result<()> {
-    let model = model_infiller(&args.model, args.iterations, &args.coverage)?;
+    let model = args.model.infiller()?;
     let clip = Clip::open(&args.clip)?;
     let outputs = infer::run_infer(&model, &clip, args.target, &args.out)?;
     for f in &outputs.files {
@@ -65,7 +76,7 @@ pub fn run_infer(args: InferArgs) -> Result<()> {
 }
 
 pub fn run_upsample(args: UpsampleArgs, progress: bool) -> Result<()> {
-    let model = model_infiller(&args.model, args.iterations, &args.coverage)?;
+    let model = args.model.infiller()?;
     let clip = Clip::open(&args.clip)?;
     let bar = progress_bar(progress, clip.len() as u64, "upsampling");
     let summary = infer::run_upsample(&model, &clip, &args.out, |_| bar.inc(1))?;
@@ -80,12 +91,4 @@ pub fn run_upsample(args: UpsampleArgs, progress: bool) -> Result<()> {
         summary.preview.display()
     );
     Ok(())
-}
-
-/// The model file as method `ivp`, with `iterations` of test-time infilling.
-fn model_infiller(file: &Path, iterations: usize, coverage: &CoverageArgs) -> Result<ModelInfiller> {
-    ensure!(iterations > 0, "--iterations must be at least 1");
-    let coverage = coverage.coverage()?;
-    let (net, _) = load_model(file)?;
-    Ok(ModelInfiller::new("ivp", net, iterations).with_coverage(coverage))
 }
