@@ -41,6 +41,10 @@ enum Task {
         /// the debug build of ivp (under 3 minutes).
         #[arg(long)]
         quick: bool,
+        /// Use this ivp binary instead of building one: a sweep that spans code changes keeps
+        /// the binary it started with.
+        #[arg(long)]
+        ivp: Option<PathBuf>,
     },
     /// Run the criterion benchmarks (warping a 1920x1080 frame, convolutions, training samples).
     Bench {
@@ -62,9 +66,14 @@ enum Task {
 
 fn main() -> Result<()> {
     match Cli::parse().command {
-        Task::Ablate { seeds, steps, data, out, quick } => {
+        Task::Ablate { seeds, steps, data, out, quick, ivp } => {
             ablate::check_seeds(&seeds)?;
-            let ivp = if quick { build_ivp_debug(&root())? } else { build_ivp(&root())? };
+            let ivp = match ivp {
+                Some(path) if path.is_file() => path,
+                Some(path) => bail!("--ivp {}: no such file", path.display()),
+                None if quick => build_ivp_debug(&root())?,
+                None => build_ivp(&root())?,
+            };
             let out = if quick && out == Path::new("runs/ablate") { PathBuf::from("runs/ablate-quick") } else { out };
             ablate::ablate(&ivp, &ablate::Sweep { seeds, steps, blender: data, out, quick })
         }
