@@ -2,14 +2,10 @@
 
 use std::path::PathBuf;
 
-/// `shared/data/blender-dev`: real Blender renders beside the repository (see the README).
+/// `data/blender-dev`: real Blender renders kept in the repository (data/README.md).
 pub fn blender_dev() -> PathBuf {
-    let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared/data/blender-dev");
-    assert!(
-        dir.is_dir(),
-        "{} is missing: the end-to-end tests need the shared data folder beside the repository",
-        dir.display()
-    );
+    let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../data/blender-dev");
+    assert!(dir.is_dir(), "{} is missing: it is part of the repository (data/README.md)", dir.display());
     dir
 }
 

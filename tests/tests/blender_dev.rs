@@ -1,4 +1,4 @@
-//! Acceptance checks on real Blender renders (shared/data/blender-dev).
+//! Acceptance checks on real Blender renders (data/blender-dev).
 
 use ivp_core::infill::classical_infiller;
 use ivp_data::{find_clips, Clip};
@@ -29,9 +29,9 @@ fn warping_to_the_next_frame_matches_it_on_known_pixels() {
     }
 }
 
-/// The scores of the classical methods agree with an independent implementation of SPEC §7
-/// (shared/data/README.md; `telea` is OpenCV's Telea inpainting, radius 5) within 2%, and `fill`
-/// beats `warp` and `copy` on disocclusions.
+/// The scores of the classical methods agree with an independent implementation of the metrics of
+/// ALGORITHMS.md §7 (data/README.md; `telea` is OpenCV's Telea inpainting, radius 5) within 2%, and
+/// `fill` beats `warp` and `copy` on disocclusions.
 #[test]
 fn classical_methods_score_as_the_independent_implementation() {
     let methods: Vec<Method> = ["copy", "warp", "fill", "oracle", "telea"]
@@ -39,7 +39,7 @@ fn classical_methods_score_as_the_independent_implementation() {
         .map(|m| Method::Internal(classical_infiller(m).unwrap()))
         .collect();
     let report = evaluate(&blender_dev(), &DEFAULT_TARGETS, &methods, false).unwrap();
-    // method, MSE, D-MSE, SSIM, D-SSIM, TC from shared/data/README.md.
+    // method, MSE, D-MSE, SSIM, D-SSIM, TC from data/README.md.
     let reference = [
         ("copy", 169.6, 1956.0, 0.808, 0.414, 385.7),
         ("warp", 51.9, 7852.2, 0.952, 0.195, 2175.3),

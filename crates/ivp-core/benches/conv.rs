@@ -1,4 +1,4 @@
-//! The convolutions of the IVP network (SPEC §6.1) at batch 4 on a 256x256 crop, through
+//! The convolutions of the IVP network (ALGORITHMS.md §6.1) at batch 4 on a 256x256 crop, through
 //! `ivp_core::nn::ops::conv2d`: forward, and forward + backward (input, weight and bias gradients).
 //!
 //! `cargo bench -p ivp-core --bench conv [-- FILTER]`. Criterion's throughput is in floating-point

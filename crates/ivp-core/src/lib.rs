@@ -1,6 +1,6 @@
 //! Infilling vector prediction without files: images, cameras, forward warping, hole
 //! classification, temporal priors, classical infillers, the network with its operators and
-//! losses, and the metrics of SPEC §7.
+//! losses, and the metrics of ALGORITHMS.md §7.
 //!
 //! The modules are layers; each imports only from the layers below it (a test in
 //! `tests/tests/layering.rs` keeps it so):

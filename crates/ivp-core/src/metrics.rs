@@ -1,4 +1,4 @@
-//! Metrics of SPEC §7: MSE, SSIM, D-MSE, D-SSIM and temporal consistency.
+//! Metrics of ALGORITHMS.md §7: MSE, SSIM, D-MSE, D-SSIM and temporal consistency.
 //!
 //! Every metric is on the 8-bit scale: image values in `[0, 1]` are multiplied by 255. All sums run
 //! in f64, and every parallel loop writes to fixed slots (no parallel float reduction), so results
@@ -41,7 +41,7 @@ pub const SSIM_C1: f64 = ssim_c1(SCALE);
 /// SSIM's contrast constant on the 0..255 scale: `(0.03 * 255)^2`.
 pub const SSIM_C2: f64 = ssim_c2(SCALE);
 
-/// Neighbourhood of the TC tracks: offsets with `|dx|, |dy| <= TC_RADIUS` (SPEC §7).
+/// Neighbourhood of the TC tracks: offsets with `|dx|, |dy| <= TC_RADIUS` (ALGORITHMS.md §7).
 pub const TC_RADIUS: isize = 8;
 
 // ---------------------------------------------------------------------------------------------
@@ -141,7 +141,7 @@ type Moments = [f64; MOMENTS];
 /// horizontally, so larger tasks waste less; 64 still leaves 17 tasks for a 1080-row frame.
 const ROWS_PER_TASK: usize = 64;
 
-/// The SSIM map (SPEC §7), one value per pixel, row-major, averaged over the three channels.
+/// The SSIM map (ALGORITHMS.md §7), one value per pixel, row-major, averaged over the three channels.
 ///
 /// Standard SSIM on 0..255 values: Gaussian window 11x11 with sigma 1.5, borders mirrored without
 /// repeating the edge pixel ([`reflect_101`]), biased local variances `E[x^2] - mu^2`,
@@ -264,7 +264,7 @@ fn ssim_from_moments(m: &Moments) -> f64 {
 // Per-frame scores
 // ---------------------------------------------------------------------------------------------
 
-/// The scores of one predicted frame (SPEC §7).
+/// The scores of one predicted frame (ALGORITHMS.md §7).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct FrameScores {
     /// MSE over the whole frame, 0..255 scale.
@@ -301,7 +301,7 @@ pub fn score_frame(pred: &RgbImage, gt: &RgbImage, disocclusions: &[bool]) -> Fr
 // ---------------------------------------------------------------------------------------------
 
 /// One clip's frames for temporal consistency. Every slice indexes the same frame sequence (for
-/// the evaluation of SPEC §5: frames 5..=11, predicted at 6, 8 and 10, so index 0 is frame 5).
+/// the evaluation of ALGORITHMS.md §5: frames 5..=11, predicted at 6, 8 and 10, so index 0 is frame 5).
 pub struct TcSequence<'a> {
     pub intrinsics: &'a Intrinsics,
     /// Ground-truth world-to-camera pose of every frame.
@@ -319,7 +319,7 @@ pub struct TcSequence<'a> {
     pub anchor_known: &'a [bool],
 }
 
-/// The population variance of the error sequence of every kept TC track of one clip (SPEC §7);
+/// The population variance of the error sequence of every kept TC track of one clip (ALGORITHMS.md §7);
 /// TC is the mean of these over all tracks of a dataset pooled together, and is absent (not 0)
 /// when there are no tracks. The output order is deterministic (anchors row-major, then offsets
 /// row-major, `dy` outer and `dx` inner).

@@ -1,5 +1,5 @@
-//! Fictitious infilling vectors and the smoothed temporal prior (SPEC §6.2), and the per-pixel
-//! background depth threshold of the iterative infilling (SPEC §6.5).
+//! Fictitious infilling vectors and the smoothed temporal prior (ALGORITHMS.md §6.2), and the per-pixel
+//! background depth threshold of the iterative infilling (ALGORITHMS.md §6.5).
 //!
 //! Layer: imports `geometry` only. [`target_prior`] is the one recipe of a target's prior, used by
 //! training samples (ivp-data) and by inference alike.
@@ -28,7 +28,7 @@ pub const THRESHOLD_PIXELS_PER_DIRECTION: usize = 5;
 pub const THRESHOLD_MAX_EXTREMES: usize = 5;
 
 // ---------------------------------------------------------------------------------------------
-// Fictitious vectors (SPEC §6.2 step 2)
+// Fictitious vectors (ALGORITHMS.md §6.2 step 2)
 // ---------------------------------------------------------------------------------------------
 
 /// Fictitious infilling vectors of every hole pixel (every pixel not `known`), measured on the
@@ -38,7 +38,7 @@ pub fn estimate_fictitious_vectors(known: &[bool], ground_truth: &RgbImage) -> V
     estimate_fictitious_vectors_on(known, &holes, ground_truth)
 }
 
-/// Fictitious infilling vectors of the hole pixels marked in `targets` (SPEC §6.2 step 2).
+/// Fictitious infilling vectors of the hole pixels marked in `targets` (ALGORITHMS.md §6.2 step 2).
 ///
 /// For a target hole pixel `p`, each direction (left, right, up, down) proposes a candidate: walk
 /// to the nearest known pixel, then one pixel further. Reading of "a direction counts only if it
@@ -117,7 +117,7 @@ fn patch_mse_255(image: &RgbImage, a: Pixel, b: Pixel) -> f32 {
 }
 
 // ---------------------------------------------------------------------------------------------
-// Temporal prior (SPEC §6.2 step 3)
+// Temporal prior (ALGORITHMS.md §6.2 step 3)
 // ---------------------------------------------------------------------------------------------
 
 /// The temporal prior `(alpha^w, beta^w)` of the target frame: the fictitious vectors of frame
@@ -214,12 +214,12 @@ pub struct TargetPrior {
     pub warp_to_last: Warp,
 }
 
-/// Frame `n - 2` warped into the view of frame `n` (SPEC §6.2 step 1).
+/// Frame `n - 2` warped into the view of frame `n` (ALGORITHMS.md §6.2 step 1).
 pub fn warp_to_last(before_last: &FrameView<'_>, last: &FrameView<'_>, k: &Intrinsics) -> Warp {
     warp_forward(before_last.image, before_last.depth, k, &relative_pose(before_last.pose, last.pose))
 }
 
-/// The temporal prior of target `t` from the two last rendered frames (SPEC §6.2 steps 1-3), the
+/// The temporal prior of target `t` from the two last rendered frames (ALGORITHMS.md §6.2 steps 1-3), the
 /// one recipe of training samples and inference: warps `n-2` to `n`, measures fictitious vectors
 /// on the holes of that warp with `f_n` as ground truth, and turns them into the prior with
 /// [`temporal_prior`]. `known_t` is the known mask of the warp `n -> t`.
@@ -237,7 +237,7 @@ pub fn target_prior(
 }
 
 // ---------------------------------------------------------------------------------------------
-// Background depth threshold (SPEC §6.5)
+// Background depth threshold (ALGORITHMS.md §6.5)
 // ---------------------------------------------------------------------------------------------
 
 /// The per-pixel depth threshold of the iterative infilling: a vector of hole pixel `p` is kept

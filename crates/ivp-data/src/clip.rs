@@ -12,7 +12,7 @@ use crate::frames::{list_frames, FrameFiles, Layout};
 use crate::io::{depth_exr_size, image_size, read_depth_exr, read_rgb};
 use crate::scenenet::read_scenenet_depth;
 
-/// The two layouts a clip folder may have (SPEC §3).
+/// The two layouts a clip folder may have (ALGORITHMS.md §3).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum ClipFormat {
     /// `rgb/NNNN.png`, `depth/NNNN.exr` (planar depth).

@@ -1,4 +1,4 @@
-//! `TransformationMatrices.csv` and `CameraIntrinsics.csv` (SPEC §3).
+//! `TransformationMatrices.csv` and `CameraIntrinsics.csv` (ALGORITHMS.md §3).
 
 use std::fmt::Write as _;
 use std::fs;

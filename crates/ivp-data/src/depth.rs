@@ -129,15 +129,24 @@ pub(crate) fn check_depth(path: &Path, stats: &DepthStats) -> Result<()> {
             ),
         ));
     }
-    if stats.is_suspicious() {
-        tracing::warn!(
+    if let Some(warning) = depth_warning(path, stats) {
+        tracing::warn!("{warning}");
+    }
+    Ok(())
+}
+
+/// The warning logged for a frame whose invalid and implausible values reach
+/// `SUSPICIOUS_DEPTH_SHARE`: the file, their share of the frame and the counts of every class.
+/// `None` for any other frame. Written apart from `check_depth` so that tests can read the text.
+pub(crate) fn depth_warning(path: &Path, stats: &DepthStats) -> Option<String> {
+    stats.is_suspicious().then(|| {
+        format!(
             "{}: {:.1}% of the frame has invalid or implausible depth ({})",
             path.display(),
             100.0 * stats.share(stats.bad()),
             stats.summary()
-        );
-    }
-    Ok(())
+        )
+    })
 }
 
 #[cfg(test)]
@@ -192,5 +201,31 @@ mod tests {
         assert!(s.is_suspicious());
         assert!(s.summary().contains("9.0% invalid"), "{}", s.summary());
         check_depth(Path::new("x.exr"), &s).unwrap();
+    }
+
+    #[test]
+    fn a_tenth_of_bad_depth_warns_naming_the_file_and_the_share() {
+        let path = Path::new("/clip/depth/0007.exr");
+        // 100 pixels: 6 NaN and 4 implausibly far (10% bad), 5 sky, 85 usable.
+        let mut values = vec![2.5; 100];
+        values[..6].fill(f32::NAN);
+        values[6..10].fill(1e9);
+        values[10..15].fill(f32::INFINITY);
+        let stats = DepthStats::of(&map(&values), false);
+        assert_eq!(
+            depth_warning(path, &stats).as_deref(),
+            Some(
+                "/clip/depth/0007.exr: 10.0% of the frame has invalid or implausible depth (85.0% usable, 5.0% sky \
+                 (+inf), 4.0% implausible (< 1e-6 or > 1e6), 6.0% invalid (NaN or negative) of 100 pixels)"
+            )
+        );
+        // A warning, not an error: the frame still loads.
+        check_depth(path, &stats).unwrap();
+        // One bad value fewer is below the share: no warning.
+        values[9] = 2.5;
+        assert_eq!(depth_warning(path, &DepthStats::of(&map(&values), false)), None);
+        // Sky and missing readings alone never warn, however much of the frame they are.
+        let sky_and_missing: Vec<f32> = (0..100).map(|i| [f32::INFINITY, 0.0, 3.0][i % 3]).collect();
+        assert_eq!(depth_warning(path, &DepthStats::of(&map(&sky_and_missing), false)), None);
     }
 }

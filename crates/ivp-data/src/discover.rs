@@ -1,4 +1,4 @@
-//! Finding clips in a dataset folder (SPEC §3: a clip is a folder with `TransformationMatrices.csv`).
+//! Finding clips in a dataset folder (ALGORITHMS.md §3: a clip is a folder with `TransformationMatrices.csv`).
 
 use std::collections::HashSet;
 use std::fs;

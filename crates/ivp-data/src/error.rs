@@ -23,7 +23,7 @@ pub enum DataError {
     #[error("{}: {action}: {cause}", path.display())]
     Exr { path: PathBuf, action: &'static str, cause: exr::error::Error },
 
-    /// A depth EXR without a channel that the rule of SPEC §3 accepts.
+    /// A depth EXR without a channel that the rule of ALGORITHMS.md §3 accepts.
     #[error(
         "{}: no depth channel: expected a single channel or one of {}, found channels [{}]",
         path.display(),

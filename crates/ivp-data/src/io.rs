@@ -15,7 +15,7 @@ use ivp_core::{DepthMap, RgbImage};
 
 use crate::error::{DataError, Result};
 
-/// Depth channel names in order of preference when an EXR has more than one channel (SPEC §3).
+/// Depth channel names in order of preference when an EXR has more than one channel (ALGORITHMS.md §3).
 /// IISc-VEED stores depth in all of R, G, B and its reference code reads `B`.
 pub const DEPTH_CHANNELS: [&str; 4] = ["Z", "depth.Z", "Y", "B"];
 
@@ -145,7 +145,7 @@ fn full_channel_name(layer: Option<&ex::Text>, channel: &ex::Text) -> String {
     }
 }
 
-/// The index of the depth channel by the rule of SPEC §3, `None` when no channel qualifies.
+/// The index of the depth channel by the rule of ALGORITHMS.md §3, `None` when no channel qualifies.
 pub fn pick_depth_channel(names: &[String]) -> Option<usize> {
     if names.len() == 1 {
         return Some(0);

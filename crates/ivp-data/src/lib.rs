@@ -1,4 +1,4 @@
-//! Clip formats on disk and datasets of clips (SPEC §3).
+//! Clip formats on disk and datasets of clips (ALGORITHMS.md §3).
 //!
 //! - [`Clip::open`] reads the IISc-VEED layout (`rgb/NNNN.png`, `depth/NNNN.exr`) and the SceneNet
 //!   RGB-D layout (`photo/<n>.jpg`, `depth/<n>.png`), both with `TransformationMatrices.csv`;

@@ -1,4 +1,4 @@
-//! Training samples (SPEC §5, §6.2): crops of warped frames, priors and ground truth, made from
+//! Training samples (ALGORITHMS.md §5, §6.2): crops of warped frames, priors and ground truth, made from
 //! clips of a dataset folder or of generated scenes, deterministically and in the background.
 //!
 //! ```text

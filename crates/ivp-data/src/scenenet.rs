@@ -1,4 +1,4 @@
-//! SceneNet RGB-D depth maps: u16 PNG of ray length in millimetres, 0 = no reading (SPEC §3).
+//! SceneNet RGB-D depth maps: u16 PNG of ray length in millimetres, 0 = no reading (ALGORITHMS.md §3).
 
 use std::path::Path;
 

@@ -93,7 +93,7 @@ fn write_exr_channels(path: &Path, w: usize, h: usize, channels: &[(&str, f32)])
 }
 
 fn blender_clip(n: usize) -> PathBuf {
-    PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../../../shared/data/blender-dev")).join(format!("clip_{n:03}"))
+    PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../../data/blender-dev")).join(format!("clip_{n:03}"))
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -470,7 +470,7 @@ fn exr_channel_rule_prefers_z_then_depth_z_then_y_then_b() {
 }
 
 #[test]
-fn pick_depth_channel_follows_spec() {
+fn pick_depth_channel_follows_the_channel_rule() {
     let names = |v: &[&str]| v.iter().map(|s| s.to_string()).collect::<Vec<_>>();
     assert_eq!(pick_depth_channel(&names(&["whatever"])), Some(0));
     assert_eq!(pick_depth_channel(&names(&["B", "G", "R", "Z"])), Some(3));

@@ -40,7 +40,7 @@ impl Infiller for PriorSpread {
 }
 
 fn main() {
-    let data = std::path::PathBuf::from(std::env::args().nth(1).unwrap_or("../shared/data/blender-dev".into()));
+    let data = std::path::PathBuf::from(std::env::args().nth(1).unwrap_or("data/blender-dev".into()));
     let mut methods = vec![Method::Internal(classical_infiller("fill").unwrap())];
     for radius in [2, 5, 10] {
         methods.push(Method::Internal(Box::new(PriorSpread { name: format!("prior-r{radius}"), radius })));

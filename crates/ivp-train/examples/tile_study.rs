@@ -3,7 +3,8 @@
 //! PERFORMANCE.md).
 //!
 //! `cargo run --release -p ivp-train --example tile_study -- MODEL DATA TARGETS`, e.g.
-//! `... -- model.safetensors ../shared/data/blender-dev-hd 3,4,5`.
+//! `... -- model.safetensors data/blender-dev 6,8,10` from the repository's root (PERFORMANCE.md
+//! also ran it on a 1920x1080 Blender clip that is not in the repository, with targets 3,4,5).
 
 use std::path::Path;
 use std::time::Instant;

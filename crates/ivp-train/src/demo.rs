@@ -11,8 +11,10 @@ use crate::checkpoint::{load_checkpoint, load_model};
 use crate::eval::Method;
 use crate::train::{latest_checkpoint, TrainConfig};
 
-/// The real clips the demo prefers to score on, relative to the working folder.
-const SHARED_CLIPS: &str = "../shared/data/blender-dev";
+/// The repository's real Blender clips (data/README.md), which the demo prefers to score on. The
+/// path is relative to the working folder, so they are found when `ivp demo` runs from the
+/// repository's root, as the README's set-up command does; elsewhere the demo generates clips.
+const BLENDER_DEV_CLIPS: &str = "data/blender-dev";
 
 /// Clips generated for scoring when the real ones are missing.
 const GENERATED_CLIPS: usize = 4;
@@ -49,15 +51,15 @@ pub fn plan_training(run_dir: &Path, config: &TrainConfig) -> Result<DemoTrainin
     Ok(if finished { DemoTraining::Reuse } else { DemoTraining::Train { resume: true } })
 }
 
-/// The clips to score on: `requested`, else the real clips when they are there, else clips
-/// generated once into the run folder.
+/// The clips to score on: `requested`, else the real clips when they are there (in the working
+/// folder, see [`BLENDER_DEV_CLIPS`]), else clips generated once into the run folder.
 pub fn evaluation_data(requested: Option<PathBuf>, run_dir: &Path) -> Result<PathBuf> {
     if let Some(dir) = requested {
         return Ok(dir);
     }
-    let shared = PathBuf::from(SHARED_CLIPS);
-    if shared.is_dir() {
-        return Ok(shared);
+    let blender_dev = PathBuf::from(BLENDER_DEV_CLIPS);
+    if blender_dev.is_dir() {
+        return Ok(blender_dev);
     }
     let dir = run_dir.join("eval-clips");
     if !dir.is_dir() {

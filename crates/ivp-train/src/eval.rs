@@ -1,5 +1,5 @@
 //! The evaluation harness: every method predicts the same targets of the same clips from the same
-//! warps, and is scored as SPEC §7 says (8-bit predictions, D- metrics on disocclusions, TC).
+//! warps, and is scored as ALGORITHMS.md §7 says (8-bit predictions, D- metrics on disocclusions, TC).
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -18,7 +18,7 @@ use serde::Serialize;
 use crate::checkpoint::load_model;
 use crate::progress::progress_bar;
 
-/// The targets of a 12-frame clip (SPEC §5).
+/// The targets of a 12-frame clip (ALGORITHMS.md §5).
 pub const DEFAULT_TARGETS: [usize; 3] = [6, 8, 10];
 
 /// A method scored by the harness.
@@ -44,7 +44,7 @@ pub struct MethodSpecs<'a> {
     pub names: &'a [String],
     /// Trained models: `NAME=FILE`, or `FILE` scored as `ivp`.
     pub models: &'a [String],
-    /// Iterations of the models' test-time infilling (SPEC §6.5).
+    /// Iterations of the models' test-time infilling (ALGORITHMS.md §6.5).
     pub iterations: usize,
     /// Frames predicted by another tool: `NAME=DIR`.
     pub externals: &'a [String],
@@ -125,7 +125,7 @@ pub struct MethodReport {
     pub d_mse: Option<f64>,
     pub ssim: f64,
     pub d_ssim: Option<f64>,
-    /// `None` when no track survived (SPEC §7).
+    /// `None` when no track survived (ALGORITHMS.md §7).
     pub tc: Option<f64>,
     pub tc_tracks: usize,
     /// `None` for external methods: their time is not ours to measure.
@@ -369,7 +369,7 @@ fn evaluate_clip(
     Ok(())
 }
 
-/// Pools the TC tracks of this clip into every method's accumulator (SPEC §7).
+/// Pools the TC tracks of this clip into every method's accumulator (ALGORITHMS.md §7).
 fn add_temporal_consistency(
     clip: &Clip,
     targets: &[usize],

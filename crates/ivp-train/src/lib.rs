@@ -2,7 +2,7 @@
 //!
 //! - `cli`: the `ivp` command line (clap arguments and a thin `run_*` per subcommand).
 //! - `eval`: the evaluation harness: methods built from their names, scored on every target of
-//!   every clip (SPEC §7), the table and the JSON report.
+//!   every clip (ALGORITHMS.md §7), the table and the JSON report.
 //! - `export_warps`: warped frames on disk (`ivp warp`), and every evaluation target exported for
 //!   other tools.
 //! - `check`: which reading of a clip's poses, axes and depth units explains its images.

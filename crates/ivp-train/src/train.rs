@@ -63,7 +63,7 @@ pub struct TrainConfig {
     pub validate_every: u64,
     /// Samples in the fixed validation set.
     pub validation_samples: usize,
-    /// Iterations of the test-time infilling in validation (SPEC §6.5).
+    /// Iterations of the test-time infilling in validation (ALGORITHMS.md §6.5).
     pub iterations: usize,
     /// Steps between two checkpoints.
     pub checkpoint_every: u64,
@@ -366,7 +366,7 @@ pub const GUIDE_RADIUS: usize = 10;
 /// whose holes are black. A vector that reads the foreground next to a sliver lowers the loss
 /// compared with reading black, so the early network settles on whichever side is nearer and
 /// learns the background side (and the prior that points to it) only slowly. The spread prior
-/// alone, used as vectors at test time, beats `fill` on shared/data/blender-dev, so pulling the
+/// alone, used as vectors at test time, beats `fill` on data/blender-dev, so pulling the
 /// network towards it first gives training a good start; the guide then fades out and the
 /// paper's losses refine the vectors.
 pub fn guide_loss(vectors: &Tensor, prior: &Tensor, mask: &Tensor) -> Result<Tensor> {

@@ -1,6 +1,6 @@
 //! The fixed validation set of a run: crops from the validation stream (never seen in training),
-//! infilled the way `ivp eval` does it (iterative infilling, SPEC §6.5) and scored with the metrics
-//! of SPEC §7, next to the `fill` baseline on the same crops.
+//! infilled the way `ivp eval` does it (iterative infilling, ALGORITHMS.md §6.5) and scored with the metrics
+//! of ALGORITHMS.md §7, next to the `fill` baseline on the same crops.
 
 use std::sync::Arc;
 

@@ -1,4 +1,4 @@
-//! The `ivp` program end to end on the real Blender clips of shared/data.
+//! The `ivp` program end to end on the real Blender clips of the repository (data/blender-dev).
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
@@ -7,8 +7,8 @@ use ivp_core::WorldToCamera;
 use ivp_data::{read_poses, read_rgb, write_poses, Clip, POSES_FILE};
 
 fn blender_dev() -> PathBuf {
-    let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data/blender-dev");
-    assert!(dir.is_dir(), "{} is missing: these tests need shared/data beside the repository", dir.display());
+    let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../data/blender-dev");
+    assert!(dir.is_dir(), "{} is missing: it is part of the repository (data/README.md)", dir.display());
     dir
 }
 

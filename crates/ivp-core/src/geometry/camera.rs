@@ -16,12 +16,12 @@ impl Intrinsics {
         Self { fx, fy, cx, cy }
     }
 
-    /// IISc-VEED's fixed camera for 1920x1080 frames (SPEC §3).
+    /// IISc-VEED's fixed camera for 1920x1080 frames (ALGORITHMS.md §3).
     pub fn iisc_veed_default() -> Self {
         Self::new(2100.0, 2100.0, 960.0, 540.0)
     }
 
-    /// SceneNet RGB-D's camera for 320x240 frames (SPEC §3).
+    /// SceneNet RGB-D's camera for 320x240 frames (ALGORITHMS.md §3).
     pub fn scenenet_default() -> Self {
         Self::new(160.0 / 30f64.to_radians().tan(), 120.0 / 22.5f64.to_radians().tan(), 160.0, 120.0)
     }

@@ -1,4 +1,4 @@
-//! Holes of a warp, split into new regions and disocclusions (SPEC §4.1).
+//! Holes of a warp, split into new regions and disocclusions (ALGORITHMS.md §4.1).
 
 use rayon::prelude::*;
 
@@ -165,7 +165,7 @@ mod tests {
         assert_eq!(m.count(PixelClass::NewRegion), 16);
     }
 
-    /// The rule of SPEC §4.1 pixel by pixel, straight from its wording.
+    /// The rule of ALGORITHMS.md §4.1 pixel by pixel, straight from its wording.
     fn classify_naive(w: usize, h: usize, known: &[bool]) -> Vec<PixelClass> {
         let k = |u: usize, v: usize| known[v * w + u];
         (0..w * h)

@@ -106,7 +106,7 @@ impl<const C: usize> Image<C> {
     }
 
     /// Rounds every channel to the 8-bit grid (`round(x * 255) / 255`, clamped to `[0, 1]`),
-    /// as every prediction is before it is scored (SPEC §7).
+    /// as every prediction is before it is scored (ALGORITHMS.md §7).
     pub fn quantized_to_8bit(&self) -> Self {
         let mut out = self.clone();
         for p in &mut out.pixels {

@@ -1,4 +1,4 @@
-//! The known-pixels-only bilinear read of SPEC §6.3 at test time, for any number of channels.
+//! The known-pixels-only bilinear read of ALGORITHMS.md §6.3 at test time, for any number of channels.
 //!
 //! Training reads with the `sample_bilinear` operator of `nn::ops` (every pixel of the crop, with
 //! a backward pass); inference reads with this one, which skips pixels that are not known yet:
@@ -6,7 +6,7 @@
 
 use crate::geometry::image::Image;
 
-/// The corners of a known-pixels-only bilinear read (SPEC §6.3) and their weights, found once so
+/// The corners of a known-pixels-only bilinear read (ALGORITHMS.md §6.3) and their weights, found once so
 /// that colour, depth and any other field can be read with the same weights.
 #[derive(Clone, Copy, Debug)]
 pub struct KnownRead {
@@ -72,7 +72,7 @@ impl KnownRead {
     }
 }
 
-/// SPEC §6.3 at test time, for an image of any number of channels (colour, depth maps, vector
+/// ALGORITHMS.md §6.3 at test time, for an image of any number of channels (colour, depth maps, vector
 /// fields): the bilinear read of `image` at `(x, y)` over the known in-frame corners, with
 /// the weights renormalised over them. `None` when no corner remains or `(x, y)` is not finite.
 pub fn sample_known<const C: usize>(image: &Image<C>, known: &[bool], x: f32, y: f32) -> Option<[f32; C]> {

@@ -1,9 +1,9 @@
-//! Forward warping by depth-weighted bilinear splatting (SPEC §4).
+//! Forward warping by depth-weighted bilinear splatting (ALGORITHMS.md §4).
 //!
 //! Each valid source pixel is lifted to 3-D with its depth, moved by the relative pose, projected
 //! into the target view and splatted onto the four integer neighbours of where it lands. The
 //! weight of a splat is the bilinear weight times a depth weight that lets the nearest surface win
-//! by a factor of up to `e^50`, so the numerics follow SPEC §4 to the letter: projection in f64,
+//! by a factor of up to `e^50`, so the numerics follow ALGORITHMS.md §4 to the letter: projection in f64,
 //! coordinates within [`SNAP_PX`] of an integer snapped onto it, bilinear weights below
 //! [`MIN_BILINEAR_WEIGHT`] dropped.
 //!
@@ -755,7 +755,7 @@ mod tests {
         assert!(!known[w - 1]);
     }
 
-    /// The splat of SPEC §4 as a plain serial loop over the source pixels into one frame-sized
+    /// The splat of ALGORITHMS.md §4 as a plain serial loop over the source pixels into one frame-sized
     /// accumulator, with the same arithmetic as `splat`: every pixel sums its splats in source
     /// order, so the two must agree to the bit.
     fn serial_splat<const C: usize>(

@@ -1,5 +1,5 @@
 //! A trained network at test time, on images: the [`VectorPredictor`] behind the iterative
-//! infilling (SPEC §6.5), and [`ModelInfiller`], the network as an [`Infiller`] beside the
+//! infilling (ALGORITHMS.md §6.5), and [`ModelInfiller`], the network as an [`Infiller`] beside the
 //! classical methods.
 //!
 //! Layer: the top of the crate; the one place where `nn` meets `infill` and `prior`.
@@ -170,7 +170,7 @@ pub struct ModelInfiller {
 }
 
 impl ModelInfiller {
-    /// `iterations` is P of SPEC §6.5 (ignored by the intensity variant). Sparse by default.
+    /// `iterations` is P of ALGORITHMS.md §6.5 (ignored by the intensity variant). Sparse by default.
     pub fn new(name: impl Into<String>, net: IvpNet, iterations: usize) -> Self {
         Self { name: name.into(), net, iterations, coverage: Coverage::default() }
     }
@@ -188,7 +188,7 @@ impl ModelInfiller {
         &self.net
     }
 
-    /// The prediction for a context, with the vectors used (SPEC §6.5).
+    /// The prediction for a context, with the vectors used (ALGORITHMS.md §6.5).
     pub fn predict(&self, ctx: &InfillContext<'_>) -> Result<ModelPrediction, InfillError> {
         let warped = ctx.warped;
         let (w, h) = (warped.image.width(), warped.image.height());

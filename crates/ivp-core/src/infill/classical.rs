@@ -87,7 +87,7 @@ impl Infiller for BackgroundFill {
     }
 }
 
-/// `oracle`: the fictitious vectors of SPEC §6.2 measured on the target frame itself, i.e. the
+/// `oracle`: the fictitious vectors of ALGORITHMS.md §6.2 measured on the target frame itself, i.e. the
 /// best a vector predictor restricted to the four directions could do. Disocclusions where no
 /// direction matches (vector 0) take the `fill` value. Reads the ground truth.
 #[derive(Clone, Copy, Debug, Default)]

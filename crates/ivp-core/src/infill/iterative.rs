@@ -1,13 +1,13 @@
-//! Iterative infilling at test time (SPEC §6.5).
+//! Iterative infilling at test time (ALGORITHMS.md §6.5).
 //!
 //! A [`VectorPredictor`] (the network) predicts an infilling vector for every disocclusion pixel
 //! still to fill; each pixel reads colour and depth at the vector's target with the
-//! known-pixels-only bilinear read (SPEC §6.3). In iterations `1..P-1` a vector is kept only if the
+//! known-pixels-only bilinear read (ALGORITHMS.md §6.3). In iterations `1..P-1` a vector is kept only if the
 //! depth it reads is at least the pixel's background depth threshold; kept pixels become known
 //! (later iterations may read them, so vectors compose) and their vectors become the prior of the
 //! next prediction. The last iteration keeps every vector, walks the ones that read nothing along
 //! their direction, and falls back to the `fill` rule where even that fails. New regions are filled
-//! by the common rule of SPEC §4.1 at the end.
+//! by the common rule of ALGORITHMS.md §4.1 at the end.
 //!
 //! Everything is deterministic: each iteration computes the outcome of every hole pixel from the
 //! state before it (in parallel over pixels), then applies them all.
@@ -22,7 +22,7 @@ use crate::infill::rules::{background_source, fill_new_regions};
 use crate::infill::InfillError;
 use crate::prior::background_depth_threshold;
 
-/// P of SPEC §6.5: two iterations that keep background vectors only, then the last.
+/// P of ALGORITHMS.md §6.5: two iterations that keep background vectors only, then the last.
 pub const DEFAULT_ITERATIONS: usize = 3;
 
 /// The largest magnitude, in pixels, that the last iteration tries along a vector's direction.
@@ -77,7 +77,7 @@ impl<T: VectorPredictor + ?Sized> VectorPredictor for Arc<T> {
 #[derive(Clone, Debug)]
 pub struct IterativeInfill {
     /// The whole frame: known pixels as warped, disocclusions infilled, new regions by the common
-    /// rule of SPEC §4.1.
+    /// rule of ALGORITHMS.md §4.1.
     pub image: RgbImage,
     /// Per disocclusion pixel, the vector it was filled with, from the pixel to the position it
     /// read in the iteration that filled it (which may be a pixel filled earlier): the predicted
@@ -146,7 +146,7 @@ fn size_error(what: &str, w: usize, h: usize, width: usize, height: usize) -> In
     InfillError::Other(format!("{what} is {w}x{h} but the warped frame is {width}x{height}"))
 }
 
-/// SPEC §6.5 on the disocclusion pixels of `holes`, then the common new-region rule (SPEC §4.1)
+/// ALGORITHMS.md §6.5 on the disocclusion pixels of `holes`, then the common new-region rule (ALGORITHMS.md §4.1)
 /// so that the whole frame is filled.
 ///
 /// - The background depth threshold of each disocclusion pixel is computed once, on the original

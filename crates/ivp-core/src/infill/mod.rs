@@ -1,7 +1,7 @@
 //! Infillers: every method that turns a warped frame with holes into a full frame, behind one trait.
 //!
 //! Every method infills the disocclusions its own way; the new regions get one common rule
-//! ([`fill_new_regions`]) so that whole-frame metrics compare like with like (SPEC §4.1).
+//! ([`fill_new_regions`]) so that whole-frame metrics compare like with like (ALGORITHMS.md §4.1).
 //!
 //! Classical methods: `copy` (the last rendered frame), `warp` (the warped frame, disocclusions
 //! black), `fill` (each disocclusion copies its background neighbour), `oracle` (fictitious
@@ -43,7 +43,7 @@ pub struct InfillContext<'a> {
 }
 
 impl InfillContext<'_> {
-    /// The temporal prior of the target (SPEC §6.2), from frames `n - 2` and `n`; `None` at the
+    /// The temporal prior of the target (ALGORITHMS.md §6.2), from frames `n - 2` and `n`; `None` at the
     /// start of a sequence, where there is no frame `n - 2`.
     pub fn temporal_prior(&self) -> Option<TargetPrior> {
         let before_last = self.before_last.as_ref()?;

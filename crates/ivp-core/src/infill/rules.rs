@@ -1,4 +1,4 @@
-//! The filling rules every method shares: the common new-region rule (SPEC §4.1), the `fill`
+//! The filling rules every method shares: the common new-region rule (ALGORITHMS.md §4.1), the `fill`
 //! rule (the background neighbour of a disocclusion) and copies along integer vectors.
 
 use rayon::prelude::*;
@@ -93,7 +93,7 @@ fn assert_mask_matches(image: &RgbImage, holes: &HoleMask) {
 // Filling rules
 // ---------------------------------------------------------------------------------------------
 
-/// The common new-region rule of SPEC §4.1: every new-region pixel copies the nearest known pixel
+/// The common new-region rule of ALGORITHMS.md §4.1: every new-region pixel copies the nearest known pixel
 /// along its row (tie: left), else along its column (tie: up), else stays as it is. Reads known
 /// pixels only, so it can run before or after the disocclusions are infilled.
 pub fn fill_new_regions(image: &mut RgbImage, holes: &HoleMask) {

@@ -31,7 +31,7 @@
 //!   even one of it and the next. Here the value is rounded up (`ceil`), and its weighted mean is
 //!   summed relative to one neighbour's level, so that a uniform neighbourhood gives exactly its
 //!   level: a constant image stays constant. Rounding up matters: rounded to the nearest level
-//!   instead, `telea` scores D-MSE 661.2 and TC 171.6 on shared/data/blender-dev, against the
+//!   instead, `telea` scores D-MSE 661.2 and TC 171.6 on data/blender-dev, against the
 //!   reference's 652.3 and 169.8 (which rounding up reproduces).
 
 use std::cmp::{Ordering, Reverse};
@@ -504,7 +504,7 @@ impl Infiller for Telea {
         let mut image = warped.image.clone();
         // The new regions first: inpainting reads every pixel outside its mask, and a new region
         // left black would bleed into the disocclusions near it. The reference figures are this
-        // order's (MSE 23.0, D-MSE 652.3, D-SSIM 0.750, TC 169.9 on shared/data/blender-dev; the
+        // order's (MSE 23.0, D-MSE 652.3, D-SSIM 0.750, TC 169.9 on data/blender-dev; the
         // other order scores 23.4, 737.9, 0.727 and 198.7).
         fill_new_regions(&mut image, &warped.holes);
         let known: Vec<bool> = warped.holes.classes().iter().map(|&c| c != PixelClass::Disocclusion).collect();

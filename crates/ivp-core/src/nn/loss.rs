@@ -1,4 +1,4 @@
-//! The training losses of SPEC §6.4, on candle tensors and differentiable through candle's autograd:
+//! The training losses of ALGORITHMS.md §6.4, on candle tensors and differentiable through candle's autograd:
 //! `L = 1 L_mse + 1 L_ssim + 0.001 L_smooth`, each a mean over the disocclusion pixels.
 //!
 //! The formulas are those of the PyTorch reference (`shared/bench/torch_reference.py`:
@@ -33,7 +33,7 @@ const SQRT_EPS: f64 = 1e-12;
 /// Sharpness of the edge-aware weights `exp(-10 mean_c |grad f|)` of the smoothness term.
 const EDGE_SHARPNESS: f64 = 10.0;
 
-/// Weights of the three terms; SPEC §6.4: 1, 1, 0.001.
+/// Weights of the three terms; ALGORITHMS.md §6.4: 1, 1, 0.001.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct LossWeights {
     pub mse: f64,
@@ -57,7 +57,7 @@ pub struct LossTerms {
     pub total: Tensor,
 }
 
-/// The loss of SPEC §6.4 on `prediction` and `truth` (B, 3, H, W) in [0, 1], `mask` (B, 1, H, W) of
+/// The loss of ALGORITHMS.md §6.4 on `prediction` and `truth` (B, 3, H, W) in [0, 1], `mask` (B, 1, H, W) of
 /// 0/1 (1 on disocclusions) and the predicted `vectors` (B, 2, H, W) in pixels. Without vectors (the
 /// variant that predicts intensities directly) the smoothness term is 0.
 pub fn ivp_loss(

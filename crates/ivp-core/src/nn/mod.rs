@@ -1,5 +1,5 @@
 //! The neural network and what trains it: candle custom operators with hand-written backward
-//! passes (`ops`), the network of SPEC §6.1 (`model`), the losses of SPEC §6.4 (`loss`), Adam
+//! passes (`ops`), the network of ALGORITHMS.md §6.1 (`model`), the losses of ALGORITHMS.md §6.4 (`loss`), Adam
 //! with saveable state (`optim`) and the image <-> tensor conversion (`tensor`).
 //!
 //! Layer: imports `geometry` (images) and `metrics` (the SSIM parameters), never `infill` or

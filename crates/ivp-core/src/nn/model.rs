@@ -1,4 +1,4 @@
-//! The IVP network of SPEC §6.1: a depth head that normalises the warped depth, and a U-Net that
+//! The IVP network of ALGORITHMS.md §6.1: a depth head that normalises the warped depth, and a U-Net that
 //! turns (temporal prior, normalised depth) into infilling vectors for the disocclusions.
 //!
 //! Parameter names equal the `state_dict` names of `IvpUNet` in `shared/bench/torch_reference.py`
@@ -32,7 +32,7 @@ use crate::nn::ops::{conv2d, conv2d_relu, sample_bilinear, upsample_bilinear_to,
 /// The encoder widths at width multiplier 1 (the paper's).
 pub const ENCODER_WIDTHS: [usize; 5] = [64, 128, 256, 256, 256];
 
-/// What the network predicts and from what (SPEC §6.1 and the paper's ablations).
+/// What the network predicts and from what (ALGORITHMS.md §6.1 and the paper's ablations).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub enum Variant {
     /// Vectors from the temporal prior and the normalised depth: the paper's model.
@@ -311,7 +311,7 @@ impl IvpNet {
     }
 
     /// The predicted frame and vectors: the warped frame with its masked pixels replaced by the
-    /// bilinear read at their vectors (SPEC §6.3, training form) or by the predicted RGB.
+    /// bilinear read at their vectors (ALGORITHMS.md §6.3, training form) or by the predicted RGB.
     pub fn forward(&self, input: &NetInput<'_>) -> Result<NetOutput> {
         let output = self.raw_output(input)?;
         let keep = input.mask.affine(-1.0, 1.0)?;

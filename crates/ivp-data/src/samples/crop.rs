@@ -1,4 +1,4 @@
-//! Square crops centred on a pixel and shifted to lie inside the frame (SPEC §5).
+//! Square crops centred on a pixel and shifted to lie inside the frame (ALGORITHMS.md §5).
 
 use ivp_core::Image;
 

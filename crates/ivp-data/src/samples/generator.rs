@@ -24,7 +24,7 @@ use crate::error::{DataError, Result};
 #[derive(Clone, Debug, PartialEq, Eq, Hash)]
 pub struct SampleConfig {
     pub seed: u64,
-    /// Side of the square crops (SPEC §5: 256).
+    /// Side of the square crops (ALGORITHMS.md §5: 256).
     pub crop: usize,
     /// Samples per batch (the reference trains with 8).
     pub batch_size: usize,

@@ -26,7 +26,7 @@ pub struct SampleOrigin {
 /// Crops (`size` x `size`, f32) for target `t = n + 1` of a clip; all share one window.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Sample {
-    /// Temporal prior `(alpha^w, beta^w)` of `t` (SPEC §6.2): zero on the holes of `t`.
+    /// Temporal prior `(alpha^w, beta^w)` of `t` (ALGORITHMS.md §6.2): zero on the holes of `t`.
     pub prior: VectorField,
     /// `d^w_t`: depth of `n` warped into view `t`, 0 in holes.
     pub warped_depth: DepthMap,

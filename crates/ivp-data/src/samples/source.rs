@@ -89,7 +89,7 @@ pub trait ClipSource: Send + Sync {
     fn origin(&self, id: u64, seed: u64) -> PathBuf;
 }
 
-/// Every clip of a dataset folder (SPEC §3), in the sorted order of [`find_clips`].
+/// Every clip of a dataset folder (ALGORITHMS.md §3), in the sorted order of [`find_clips`].
 #[derive(Clone, Debug)]
 pub struct DatasetSource {
     clips: Vec<Clip>,

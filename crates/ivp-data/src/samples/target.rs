@@ -1,5 +1,5 @@
 //! One training target of a clip: the frames it uses, and the warps and prior that every crop of
-//! it reads (SPEC §5, §6.2), computed once.
+//! it reads (ALGORITHMS.md §5, §6.2), computed once.
 
 use ivp_core::prior::{target_prior, TargetPrior};
 use ivp_core::{relative_pose, warp_forward, RgbImage, VectorField, Warp};
@@ -57,7 +57,7 @@ pub(crate) struct PreparedTarget {
     pub frames: TargetFrames,
     /// `f_n` warped into view `t`: `f^w_t`, `d^w_t` and the holes of `t`.
     pub warped: Warp,
-    /// The temporal prior of `t` (SPEC §6.2), zero on the holes of `t`.
+    /// The temporal prior of `t` (ALGORITHMS.md §6.2), zero on the holes of `t`.
     pub prior: VectorField,
     /// `f_{n-2}` warped into view `n`: `f^w_n`, for the intensity ablation.
     pub last_warped: RgbImage,
@@ -66,7 +66,7 @@ pub(crate) struct PreparedTarget {
 }
 
 impl PreparedTarget {
-    /// Warps `n - 2 -> n` and `n -> t` and computes the prior of `t` (SPEC §6.2 steps 1-3).
+    /// Warps `n - 2 -> n` and `n -> t` and computes the prior of `t` (ALGORITHMS.md §6.2 steps 1-3).
     /// `None` when the warp `n -> t` has no disocclusion: such a target gives no sample.
     pub fn compute(clip: &ClipFrames, frames: TargetFrames) -> Option<Self> {
         let k = &clip.intrinsics;

@@ -1,5 +1,5 @@
 //! Tests of the sample pipeline on small generated box scenes (96x72 frames, 32x32 crops), and
-//! one on the Blender clips of shared/data.
+//! one on the Blender clips of data/blender-dev.
 
 use std::path::PathBuf;
 use std::sync::mpsc;
@@ -343,7 +343,7 @@ fn a_finite_source_visits_every_clip_once_per_pass() {
 }
 
 fn blender_dev() -> PathBuf {
-    PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../../../shared/data/blender-dev"))
+    PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../../data/blender-dev"))
 }
 
 #[test]

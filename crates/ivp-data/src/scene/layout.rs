@@ -236,7 +236,7 @@ fn try_place(rng: &mut impl Rng, room: &Room, path: &[DVec3], view: &StartView, 
     let near = slot.near;
     // A near object spans the image unless it is small and floats inside the view: the background
     // it uncovers would then reach the image border, which makes it a new region, not a
-    // disocclusion (SPEC 4.1). So near objects are free-standing and shrunk to fit the view.
+    // disocclusion (ALGORITHMS.md §4.1). So near objects are free-standing and shrunk to fit the view.
     let kind = Kind::random(rng, near);
     let (floor, ceiling) = (room.min.z as f64, room.max.z as f64);
     // Horizontal half-extents (for boxes) or radius, and height (None: floor to ceiling).

@@ -8,7 +8,7 @@
 //! The camera moves like a head-mounted display at 30 fps (see [`trajectory`]).
 //!
 //! - [`render_clip`]: one clip from a seed, fully determined by `(seed, params)`.
-//! - [`generate_dataset`]: many clips written to disk in the clip layout of SPEC §3.
+//! - [`generate_dataset`]: many clips written to disk in the clip layout of ALGORITHMS.md §3.
 //! - [`Scene::random`] and [`Scene::render`] for finer control; [`Scene`] can be built by hand.
 //!
 //! World axes: metres, z up, floor at z = 0 (cameras use OpenCV axes, see [`ivp_core::geometry::camera`]).

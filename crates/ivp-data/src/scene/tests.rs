@@ -347,7 +347,7 @@ fn report_warp_statistics() {
     println!("(50 clips rendered and warped in {:.1} s)", start.elapsed().as_secs_f64());
     report_warps("synthetic, 50 clips x 11 warps n -> n+1, 320x240:", &synthetic);
 
-    let blender = PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../../../shared/data/blender-dev"));
+    let blender = PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../../data/blender-dev"));
     let mut real = Vec::new();
     for i in 0..4 {
         let clip = Clip::open(blender.join(format!("clip_{i:03}"))).unwrap();

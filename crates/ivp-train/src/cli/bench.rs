@@ -63,7 +63,7 @@ pub enum BenchCommand {
         /// Width multiplier of the untrained network (the recipe's is 0.25).
         #[arg(long, default_value_t = 0.25)]
         width_mult: f64,
-        /// Iterations of the test-time infilling (SPEC §6.5).
+        /// Iterations of the test-time infilling (ALGORITHMS.md §6.5).
         #[arg(long, default_value_t = ivp_core::infill::DEFAULT_ITERATIONS)]
         iterations: usize,
         /// Timed runs (after one untimed warm-up run).

@@ -50,7 +50,7 @@ pub struct CheckArgs {
 
 #[derive(Args)]
 pub struct GenerateArgs {
-    /// Output folder: clips are written to OUT/clip_0000, OUT/clip_0001, ... (SPEC §3 layout).
+    /// Output folder: clips are written to OUT/clip_0000, OUT/clip_0001, ... (ALGORITHMS.md §3 layout).
     #[arg(long)]
     out: PathBuf,
     /// Number of clips.

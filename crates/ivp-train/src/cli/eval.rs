@@ -28,7 +28,7 @@ pub struct EvalArgs {
     /// A trained model, scored as method `ivp` (FILE) or NAME (NAME=FILE); repeatable.
     #[arg(long, value_name = "[NAME=]FILE")]
     model: Vec<String>,
-    /// Iterations of the models' test-time infilling (SPEC §6.5).
+    /// Iterations of the models' test-time infilling (ALGORITHMS.md §6.5).
     #[arg(long, default_value_t = ivp_core::infill::DEFAULT_ITERATIONS)]
     iterations: usize,
     /// Score frames predicted by another tool: NAME=DIR, read from DIR/<clip name>/<t:04>.png.

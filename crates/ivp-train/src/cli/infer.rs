@@ -18,7 +18,7 @@ pub struct ModelArgs {
     /// A model file (ivp train writes RUN_DIR/model.safetensors).
     #[arg(long)]
     model: PathBuf,
-    /// Iterations of the test-time infilling (SPEC §6.5).
+    /// Iterations of the test-time infilling (ALGORITHMS.md §6.5).
     #[arg(long, default_value_t = ivp_core::infill::DEFAULT_ITERATIONS)]
     iterations: usize,
     #[command(flatten)]

@@ -34,7 +34,7 @@ pub struct Cli {
 pub enum Command {
     /// Warp one frame into another frame's view, or export the warped targets of a dataset.
     Warp(data::WarpArgs),
-    /// Score infilling methods on every clip of a dataset (SPEC §7 metrics).
+    /// Score infilling methods on every clip of a dataset (ALGORITHMS.md §7 metrics).
     Eval(eval::EvalArgs),
     /// Validate a clip and diagnose convention mistakes (pose direction, axes, depth units).
     Check(data::CheckArgs),

@@ -69,8 +69,9 @@ pub struct DemoArgs {
     /// Training steps (about 0.2 s each on 2 cores).
     #[arg(long, default_value_t = 1000)]
     steps: u64,
-    /// Clips to evaluate on; by default ../shared/data/blender-dev when it exists, otherwise
-    /// generated clips the network never saw.
+    /// Clips to evaluate on; by default data/blender-dev (relative to the working folder: the
+    /// repository's Blender clips when run from its root), otherwise generated clips the network
+    /// never saw.
     #[arg(long)]
     data: Option<PathBuf>,
 }

@@ -1,7 +1,7 @@
 //! 2-D convolution on the CPU as a candle custom op, forward and backward, on the `gemm` crate.
 //!
 //! candle's own CPU convolution spends most of its time in a scalar im2col loop and computes the
-//! input gradient with a `conv_transpose2d` that never calls gemm (SPEC §8). Here all three products
+//! input gradient with a `conv_transpose2d` that never calls gemm (ALGORITHMS.md §8). Here all three products
 //! are gemm calls on *tiles*: a range of output pixels of one image (at least `MIN_TILE_PX`) and a
 //! block of input channels, whose im2col matrix (`cb k k` rows by `px` pixels) is about
 //! `TILE_BYTES` and stays in L2. A full-frame im2col buffer is never built (64 -> 64 channels 3x3

@@ -1,4 +1,4 @@
-//! Separable Gaussian filtering for the SSIM loss (SPEC §6.4), with backward.
+//! Separable Gaussian filtering for the SSIM loss (ALGORITHMS.md §6.4), with backward.
 //!
 //! [`gaussian_blur`] filters every channel of a (N, C, H, W) map on its own with the 11 x 11
 //! Gaussian window of sigma 1.5 (normalised to sum 1) and zero padding, keeping the size: PyTorch's
@@ -6,7 +6,7 @@
 //! product of a 1-D kernel with itself, and zero padding keeps that product structure at the border
 //! (a row outside the frame contributes a zero row), so the 2-D filter is exactly a row pass then a
 //! column pass of 11 taps each: 22 multiply-adds per pixel instead of 121, and no im2col (candle's
-//! grouped conv2d runs one im2col + matmul per channel, SPEC §8).
+//! grouped conv2d runs one im2col + matmul per channel, ALGORITHMS.md §8).
 //!
 //! Both passes add one whole tap at a time to a row (`out[x] += g[k] * src[x + k - 5]` over the
 //! valid range of x), a loop the compiler vectorises; border pixels just skip the taps that fall

@@ -1,4 +1,4 @@
-//! Resizing of (B, C, H, W) maps as candle custom ops with correct backward passes (SPEC §6.1, §8).
+//! Resizing of (B, C, H, W) maps as candle custom ops with correct backward passes (ALGORITHMS.md §6.1, §8).
 //!
 //! - [`upsample_nearest2x_to`]: nearest x2 upsampling cropped to the skip connection's size, as in
 //!   the U-Net decoder. candle's own `upsample_nearest2d` backward overwrites instead of adding the
@@ -373,7 +373,7 @@ mod tests {
 
     #[test]
     fn bilinear_matches_candle_forward() {
-        // candle's own resize has the same half-pixel convention, but no backward (SPEC §8).
+        // candle's own resize has the same half-pixel convention, but no backward (ALGORITHMS.md §8).
         for (i, (b, c, h, w, height, width)) in
             [(2, 3, 5, 7, 10, 14), (1, 2, 4, 3, 7, 5), (1, 1, 1, 1, 2, 2), (1, 1, 9, 6, 17, 11)].into_iter().enumerate()
         {
@@ -463,7 +463,7 @@ mod tests {
 
     #[test]
     fn nearest_gradient_matches_the_broadcast_reference() {
-        // SPEC §8's correct formulation: reshape, broadcast_as, reshape, then crop.
+        // A reference made of candle ops whose backward is right: reshape, broadcast_as, reshape, crop.
         let (b, c, h, w) = (2, 3, 5, 4);
         let x = Var::from_tensor(&random(&[b, c, h, w], 7)).unwrap();
         let up = x.reshape((b, c, h, 1, w, 1)).unwrap().broadcast_as((b, c, h, 2, w, 2)).unwrap();

@@ -1,4 +1,4 @@
-//! Bilinear sampling of an image at per-pixel offsets (SPEC §6.3) as a candle custom op, with a
+//! Bilinear sampling of an image at per-pixel offsets (ALGORITHMS.md §6.3) as a candle custom op, with a
 //! hand-written backward for both the image and the offsets (candle has no `grid_sample`).
 //!
 //! Output pixel (x, y) of channel c is the bilinear read of the image at (x + a, y + b), where
