@@ -7,6 +7,8 @@
 //!   other tools.
 //! - `check`: which reading of a clip's poses, axes and depth units explains its images.
 //! - `train`: the training configuration, the loop (validation, checkpoints, resume) and one step.
+//! - `distributed`: data-parallel training: the ranks of a job (one process, or MPI with the `mpi`
+//!   feature), the batch split, the fixed-order gradient all-reduce, rank 0's state for every rank.
 //! - `metrics_csv`: the rows of a run's `metrics.csv`, written and read back on resume.
 //! - `validation`: the fixed validation crops of a run, scored the way `eval` scores.
 //! - `checkpoint`: model files and checkpoints, saved and strictly loaded.
@@ -24,6 +26,7 @@ pub mod check;
 pub mod checkpoint;
 pub mod cli;
 pub mod demo;
+pub mod distributed;
 pub mod eval;
 pub mod export_warps;
 pub mod infer;

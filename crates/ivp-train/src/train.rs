@@ -5,6 +5,10 @@
 //! `checkpoints/step_NNNNNNNN.safetensors` (the last `keep_checkpoints`) and, at the end,
 //! `model.safetensors`. The batch of step `s` is a function of the seed and `s` alone, and every
 //! operator reduces in a fixed order, so a resumed run continues bit-identically.
+//!
+//! The same loop runs as one rank of a data-parallel job ([`train_on`], `mpirun -np N ivp train`):
+//! each rank trains on its part of every batch, the ranks' gradients are summed before Adam's
+//! step (see [`crate::distributed`]), and rank 0 alone reads and writes the run folder.
 
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -14,7 +18,7 @@ use std::time::{Duration, Instant};
 use anyhow::{bail, ensure, Context, Result};
 use candle_core::Tensor;
 use candle_nn::VarMap;
-use ivp_core::nn::loss::{ivp_loss, LossWeights};
+use ivp_core::nn::loss::{ivp_loss_normalised, LossCounts, LossWeights};
 use ivp_core::nn::model::{named_parameters, IvpNet, ModelConfig, NetInput, Variant};
 use ivp_core::nn::optim::{Adam, AdamConfig};
 use ivp_data::samples::{
@@ -25,6 +29,9 @@ use ivp_data::SceneParams;
 use serde::{Deserialize, Serialize};
 
 use crate::checkpoint::{check_width_mult, load_checkpoint, restore_parameters, save_checkpoint, save_model};
+use crate::distributed::{
+    any_rank, batch_part, share_training_state, sum_gradients, sum_over_ranks, ProcessGroup, SingleProcess,
+};
 use crate::metrics_csv::{LossWindow, MetricsLog, MetricsRow};
 use crate::plot::write_loss_curve;
 use crate::progress::progress_bar;
@@ -185,7 +192,10 @@ pub struct RunOptions {
 /// What a finished (or stopped) run reports.
 #[derive(Clone, Debug)]
 pub struct TrainSummary {
+    /// The step the run stopped at (its last step unless stopped early).
     pub steps_done: u64,
+    /// The steps this call ran (fewer than `steps_done` when resumed).
+    pub steps_run: u64,
     pub stopped_early: bool,
     pub elapsed: Duration,
     pub last_validation: Option<ValidationScores>,
@@ -195,57 +205,46 @@ pub struct TrainSummary {
 
 /// Trains a network as `config` says, in `run_dir`.
 pub fn train(config: &TrainConfig, run_dir: &Path, options: &RunOptions) -> Result<TrainSummary> {
+    train_on(&SingleProcess, config, run_dir, options)
+}
+
+/// [`train`] as one rank of a data-parallel job: every rank of `group` calls it with the same
+/// configuration. `config.batch` is the global batch, split over the ranks; rank 0 alone reads and
+/// writes `run_dir` (the others start from its state) and shows progress.
+pub fn train_on(
+    group: &dyn ProcessGroup,
+    config: &TrainConfig,
+    run_dir: &Path,
+    options: &RunOptions,
+) -> Result<TrainSummary> {
     config.validate()?;
     let model_config = config.model()?;
+    let is_root = group.rank() == 0;
+    let batch_part = batch_part(config.batch, group)?;
     let checkpoints = run_dir.join("checkpoints");
-    std::fs::create_dir_all(&checkpoints).with_context(|| format!("cannot create {}", checkpoints.display()))?;
 
     let (net, varmap) = IvpNet::seeded(model_config, config.seed)?;
     let mut optimizer = Adam::new(named_parameters(&varmap), AdamConfig { lr: config.lr, ..AdamConfig::default() })?;
-    let mut log = MetricsLog::new(run_dir.join("metrics.csv"));
-    let mut first_step = 0;
-    let mut elapsed_before = Duration::ZERO;
-    match (latest_checkpoint(&checkpoints)?, options.resume) {
-        (Some(path), true) => {
-            let ckpt = load_checkpoint(&path)?;
-            let saved: TrainConfig = serde_json::from_str(&ckpt.train_config)
-                .with_context(|| format!("{}: unreadable training configuration", path.display()))?;
-            ensure!(
-                TrainConfig { steps: config.steps, ..saved.clone() } == *config,
-                "{}: the run was started with another configuration (only --steps may change on resume):\n{saved:#?}",
-                path.display()
-            );
-            restore_parameters(&path, &varmap, &ckpt.params)?;
-            optimizer.load_state(&ckpt.adam, ckpt.adam_steps)?;
-            first_step = ckpt.step;
-            log = MetricsLog::resume(run_dir.join("metrics.csv"), first_step)?;
-            elapsed_before = log.last_elapsed();
-            tracing::info!("resuming {} at step {first_step}", run_dir.display());
-        }
-        (None, true) => bail!("{}: nothing to resume (no checkpoint in {})", run_dir.display(), checkpoints.display()),
-        (Some(path), false) => bail!(
-            "{} already holds a run (last checkpoint {}): pass --resume to continue it, or choose another --out",
-            run_dir.display(),
-            path.display()
-        ),
-        (None, false) => {}
-    }
-    let config_text = toml::to_string(config)?;
-    ivp_data::write_atomically(&run_dir.join("config.toml"), config_text.as_bytes())?;
+    let mut run = match is_root {
+        true => Some(open_run_folder(config, run_dir, options.resume, &varmap, &mut optimizer)?),
+        false => None,
+    };
+    let first_step = share_training_state(group, &mut optimizer, run.as_ref().map_or(0, |r| r.first_step))?;
+    let elapsed_before = run.as_ref().map_or(Duration::ZERO, |r| r.log.last_elapsed());
     let config_json = serde_json::to_string(config)?;
 
     let source = config.source()?;
-    let validation = ValidationSet::new(source.clone(), config.sample_config(), config.validation_samples)?;
-    let fill = validation.score_fill();
-    let generator = Arc::new(SampleGenerator::new(source, config.sample_config(), Split::Train)?);
+    let validation = ValidationSet::new(source.clone(), config.sample_config(), config.validation_samples, group)?;
+    let fill = validation.score_fill(group);
+    let generator = SampleGenerator::new(source, config.sample_config(), Split::Train)?.with_batch_part(batch_part)?;
     let mut stream = SampleStream::start(
-        generator,
+        Arc::new(generator),
         first_step,
         StreamOptions { workers: config.data_workers, ..Default::default() },
     )?;
 
     let weights = LossWeights::default();
-    let bar = progress_bar(options.progress, config.steps, "training");
+    let bar = progress_bar(options.progress && is_root, config.steps, "training");
     bar.set_position(first_step);
     let start = Instant::now();
     let elapsed = || elapsed_before + start.elapsed();
@@ -254,6 +253,9 @@ pub fn train(config: &TrainConfig, run_dir: &Path, options: &RunOptions) -> Resu
     let mut step = first_step;
     let mut stopped_early = false;
     let checkpoint = |step: u64, optimizer: &Adam| -> Result<()> {
+        if !is_root {
+            return Ok(());
+        }
         let path = checkpoints.join(format!("step_{step:08}.safetensors"));
         save_checkpoint(&path, &varmap, &model_config, optimizer, step, &config_json)?;
         tracing::info!(step, path = %path.display(), "checkpoint");
@@ -264,8 +266,9 @@ pub fn train(config: &TrainConfig, run_dir: &Path, options: &RunOptions) -> Resu
         debug_assert_eq!(batch.step, step);
         optimizer.set_lr(config.lr_at(step));
         let guide_weight = config.guide_weight_at(step);
-        let loss = training_step(&net, &mut optimizer, &batch_input(&batch), &batch.truth, &weights, guide_weight)
-            .with_context(|| format!("training stopped at step {step}; the last good checkpoint is kept"))?;
+        let loss =
+            training_step(&net, &mut optimizer, &batch_input(&batch), &batch.truth, &weights, guide_weight, group)
+                .with_context(|| format!("training stopped at step {step}; the last good checkpoint is kept"))?;
         step += 1;
         window.add(&loss);
         bar.set_position(step);
@@ -274,7 +277,7 @@ pub fn train(config: &TrainConfig, run_dir: &Path, options: &RunOptions) -> Resu
 
         let validate_now = (config.validate_every > 0 && step % config.validate_every == 0) || step == config.steps;
         if step % config.log_every == 0 || validate_now {
-            let scores = validate_now.then(|| validation.score_network(&net, config.iterations)).transpose()?;
+            let scores = validate_now.then(|| validation.score_network(&net, config.iterations, group)).transpose()?;
             if let Some(s) = &scores {
                 tracing::info!(step, d_mse = s.d_mse, d_ssim = s.d_ssim, "validation");
                 bar.println(format!(
@@ -283,13 +286,16 @@ pub fn train(config: &TrainConfig, run_dir: &Path, options: &RunOptions) -> Resu
                 ));
                 last_validation = Some(*s);
             }
-            log.push(MetricsRow { step, loss: window.take(), validation: scores, fill, elapsed: elapsed() });
-            log.save()?;
+            if let Some(run) = &mut run {
+                run.log.push(MetricsRow { step, loss: window.take(), validation: scores, fill, elapsed: elapsed() });
+                run.log.save()?;
+            }
         }
         if step % config.checkpoint_every == 0 || step == config.steps {
             checkpoint(step, &optimizer)?;
         }
-        let interrupted = options.stop.as_ref().is_some_and(|s| s.load(Ordering::SeqCst));
+        // Ctrl-C reaches the ranks one by one (or only one): they stop together, after the same step.
+        let interrupted = any_rank(group, options.stop.as_ref().is_some_and(|s| s.load(Ordering::SeqCst)));
         if (interrupted || options.stop_at == Some(step)) && step < config.steps {
             if step % config.checkpoint_every != 0 {
                 checkpoint(step, &optimizer)?;
@@ -301,13 +307,16 @@ pub fn train(config: &TrainConfig, run_dir: &Path, options: &RunOptions) -> Resu
     }
     bar.finish_and_clear();
     drop(stream);
-    write_loss_curve(&run_dir.join("loss.png"), log.rows())?;
     let model_path = (!stopped_early).then(|| run_dir.join("model.safetensors"));
-    if let Some(path) = &model_path {
-        save_model(path, &varmap, &model_config, Some(step))?;
+    if let Some(run) = &run {
+        write_loss_curve(&run_dir.join("loss.png"), run.log.rows())?;
+        if let Some(path) = &model_path {
+            save_model(path, &varmap, &model_config, Some(step))?;
+        }
     }
     Ok(TrainSummary {
         steps_done: step,
+        steps_run: step - first_step,
         stopped_early,
         elapsed: elapsed(),
         last_validation,
@@ -316,11 +325,62 @@ pub fn train(config: &TrainConfig, run_dir: &Path, options: &RunOptions) -> Resu
     })
 }
 
+/// What rank 0 finds in (or starts) the run folder.
+struct RunFolder {
+    first_step: u64,
+    log: MetricsLog,
+}
+
+/// Starts the run in `run_dir`, or (`resume`) restores the parameters and Adam's state of its last
+/// checkpoint, which must be of the same configuration but for `steps`.
+fn open_run_folder(
+    config: &TrainConfig,
+    run_dir: &Path,
+    resume: bool,
+    varmap: &VarMap,
+    optimizer: &mut Adam,
+) -> Result<RunFolder> {
+    let checkpoints = run_dir.join("checkpoints");
+    std::fs::create_dir_all(&checkpoints).with_context(|| format!("cannot create {}", checkpoints.display()))?;
+    let mut run = RunFolder { first_step: 0, log: MetricsLog::new(run_dir.join("metrics.csv")) };
+    match (latest_checkpoint(&checkpoints)?, resume) {
+        (Some(path), true) => {
+            let ckpt = load_checkpoint(&path)?;
+            let saved: TrainConfig = serde_json::from_str(&ckpt.train_config)
+                .with_context(|| format!("{}: unreadable training configuration", path.display()))?;
+            ensure!(
+                TrainConfig { steps: config.steps, ..saved.clone() } == *config,
+                "{}: the run was started with another configuration (only --steps may change on resume):\n{saved:#?}",
+                path.display()
+            );
+            restore_parameters(&path, varmap, &ckpt.params)?;
+            optimizer.load_state(&ckpt.adam, ckpt.adam_steps)?;
+            run.first_step = ckpt.step;
+            run.log = MetricsLog::resume(run_dir.join("metrics.csv"), ckpt.step)?;
+            tracing::info!("resuming {} at step {}", run_dir.display(), ckpt.step);
+        }
+        (None, true) => bail!("{}: nothing to resume (no checkpoint in {})", run_dir.display(), checkpoints.display()),
+        (Some(path), false) => bail!(
+            "{} already holds a run (last checkpoint {}): pass --resume to continue it, or choose another --out",
+            run_dir.display(),
+            path.display()
+        ),
+        (None, false) => {}
+    }
+    let config_text = toml::to_string(config)?;
+    ivp_data::write_atomically(&run_dir.join("config.toml"), config_text.as_bytes())?;
+    Ok(run)
+}
+
 /// One optimisation step on `input` with ground truth `truth`; returns the losses before the update.
 /// `guide_weight` scales the guide term ([`guide_loss`]; 0 leaves it out). The guide pulls towards
 /// the temporal prior, so it applies only to the variants that read the prior: an ablation
 /// without temporal guidance must not learn from the prior through the loss either. A non-finite
 /// loss is an error and leaves the parameters untouched.
+///
+/// In a data-parallel job `input` is this rank's part of the batch: its terms are divided by the
+/// counts of the whole batch, the returned losses are the whole batch's and the update is the
+/// same on every rank (for [`SingleProcess`] every exchange below returns its input as it is).
 pub fn training_step(
     net: &IvpNet,
     optimizer: &mut Adam,
@@ -328,29 +388,40 @@ pub fn training_step(
     truth: &Tensor,
     weights: &LossWeights,
     guide_weight: f64,
+    group: &dyn ProcessGroup,
 ) -> Result<LossValues> {
+    let guided = guide_weight > 0.0 && net.config().variant.reads_temporal_prior();
+    let guide_target = guided.then(|| GuideTarget::new(input.prior, input.mask)).transpose()?;
+    let local = LossCounts::of(input.mask)?;
+    let guide_count = guide_target.as_ref().map_or(0.0, |g| g.count);
+    let [pixels, pairs_x, pairs_y, guide_count] =
+        sum_over_ranks(group, &[local.pixels, local.pairs_x, local.pairs_y, guide_count]).try_into().expect("4 counts");
+    let counts = LossCounts { pixels, pairs_x, pairs_y };
+
     let out = net.forward(input)?;
-    let terms = ivp_loss(&out.frame, truth, input.mask, out.vectors.as_ref(), weights)?;
+    let terms = ivp_loss_normalised(&out.frame, truth, input.mask, out.vectors.as_ref(), weights, &counts)?;
     let mut total = terms.total.clone();
     let mut guide = 0.0;
-    let guided = guide_weight > 0.0 && net.config().variant.reads_temporal_prior();
-    if let (Some(vectors), true) = (&out.vectors, guided) {
-        let term = (guide_loss(vectors, input.prior, input.mask)? * guide_weight)?;
+    if let (Some(vectors), Some(target)) = (&out.vectors, &guide_target) {
+        let term = (target.loss(vectors, guide_count)? * guide_weight)?;
         guide = term.to_scalar::<f32>()?;
         total = (total + term)?;
     }
-    let scalar = |t: &Tensor| -> Result<f32> { Ok(t.to_scalar::<f32>()?) };
+    let scalar = |t: &Tensor| -> Result<f64> { Ok(t.to_scalar::<f32>()? as f64) };
+    let part = [scalar(&terms.mse)?, scalar(&terms.ssim)?, scalar(&terms.smooth)?, guide as f64, scalar(&total)?];
+    let [mse, ssim, smooth, guide, total_value] = sum_over_ranks(group, &part).try_into().expect("5 terms");
     let values = LossValues {
-        mse: scalar(&terms.mse)?,
-        ssim: scalar(&terms.ssim)?,
-        smooth: scalar(&terms.smooth)?,
-        guide,
-        total: scalar(&total)?,
+        mse: mse as f32,
+        ssim: ssim as f32,
+        smooth: smooth as f32,
+        guide: guide as f32,
+        total: total_value as f32,
     };
     if !values.total.is_finite() {
         bail!("the loss is not finite ({values:?})");
     }
-    let grads = total.backward()?;
+    let mut grads = total.backward()?;
+    sum_gradients(group, &mut grads, optimizer.parameters())?;
     optimizer.step(&grads)?;
     Ok(values)
 }
@@ -370,22 +441,45 @@ pub const GUIDE_RADIUS: usize = 10;
 /// network towards it first gives training a good start; the guide then fades out and the
 /// paper's losses refine the vectors.
 pub fn guide_loss(vectors: &Tensor, prior: &Tensor, mask: &Tensor) -> Result<Tensor> {
-    let (b, _, h, w) = prior.dims4()?;
-    let mut target = Vec::with_capacity(b * 2 * h * w);
-    let mut has_target = Vec::with_capacity(b * h * w);
-    for i in 0..b {
-        let field: ivp_core::VectorField = ivp_core::nn::tensor::from_tensor(&prior.narrow(0, i, 1)?)?;
-        let spread = ivp_core::prior::mean_of_nonzero_vectors(&field, GUIDE_RADIUS);
-        for c in 0..2 {
-            target.extend(spread.pixels().iter().map(|p| p[c]));
+    let target = GuideTarget::new(prior, mask)?;
+    target.loss(vectors, target.count)
+}
+
+/// What [`guide_loss`] compares the vectors with: the spread prior, and the pixels it applies to.
+struct GuideTarget {
+    /// The prior spread into the holes: (B, 2, H, W).
+    vectors: Tensor,
+    /// 1 at the disocclusion pixels with a spread prior: (B, 1, H, W).
+    weight: Tensor,
+    /// The number of such pixels.
+    count: f64,
+}
+
+impl GuideTarget {
+    fn new(prior: &Tensor, mask: &Tensor) -> Result<Self> {
+        let (b, _, h, w) = prior.dims4()?;
+        let mut target = Vec::with_capacity(b * 2 * h * w);
+        let mut has_target = Vec::with_capacity(b * h * w);
+        for i in 0..b {
+            let field: ivp_core::VectorField = ivp_core::nn::tensor::from_tensor(&prior.narrow(0, i, 1)?)?;
+            let spread = ivp_core::prior::mean_of_nonzero_vectors(&field, GUIDE_RADIUS);
+            for c in 0..2 {
+                target.extend(spread.pixels().iter().map(|p| p[c]));
+            }
+            has_target.extend(spread.pixels().iter().map(|p| f32::from(p[0] != 0.0 || p[1] != 0.0)));
         }
-        has_target.extend(spread.pixels().iter().map(|p| f32::from(p[0] != 0.0 || p[1] != 0.0)));
+        let vectors = Tensor::from_vec(target, (b, 2, h, w), prior.device())?;
+        let weight = (Tensor::from_vec(has_target, (b, 1, h, w), prior.device())? * mask)?;
+        // An exact count: a sum of at most 2^24 ones in f32.
+        let count = weight.sum_all()?.to_scalar::<f32>()? as f64;
+        Ok(Self { vectors, weight, count })
     }
-    let target = Tensor::from_vec(target, (b, 2, h, w), prior.device())?;
-    let weight = (Tensor::from_vec(has_target, (b, 1, h, w), prior.device())? * mask)?;
-    let count = weight.sum_all()?.to_scalar::<f32>()?;
-    let difference = (vectors - target)?.abs()?.broadcast_mul(&weight)?.sum_all()?;
-    Ok((difference / (2.0 * count.max(1.0) as f64))?)
+
+    /// The guide term of `vectors`, divided by `count` guided pixels (these, or the whole batch's).
+    fn loss(&self, vectors: &Tensor, count: f64) -> Result<Tensor> {
+        let difference = (vectors - &self.vectors)?.abs()?.broadcast_mul(&self.weight)?.sum_all()?;
+        Ok((difference / (2.0 * count.max(1.0)))?)
+    }
 }
 
 pub fn batch_input(batch: &Batch) -> NetInput<'_> {
@@ -463,6 +557,71 @@ mod tests {
     }
 
     #[test]
+    fn ranks_with_parts_of_a_batch_train_like_one_process_with_all_of_it() {
+        use crate::distributed::tests::ThreadGroup;
+        // A batch of 3 random crops with holes and a prior: 2 guided steps and 1 unguided, by one
+        // process and by 2 ranks (crops [0, 2) and [2, 3)).
+        let (b, h, w) = (3, 16, 16);
+        let values = |c: usize, seed: usize| -> Vec<f32> {
+            (0..b * c * h * w).map(|i| ((i * 7919 + seed * 104_729) % 1000) as f32 / 1000.0).collect()
+        };
+        let mask: Vec<f32> = (0..b * h * w).map(|i| f32::from((i % (h * w)) / 16 % 5 == 2)).collect();
+        let prior: Vec<f32> =
+            values(2, 1).iter().zip((0..).map(|i| mask[i % (b * h * w)])).map(|(v, m)| 4.0 * v * (1.0 - m)).collect();
+        let batch = [prior, values(1, 2), mask, values(3, 3), values(3, 4)].map(|v| {
+            let c = v.len() / (b * h * w);
+            tensor(v, (b, c, h, w))
+        });
+        let train = |group: &dyn ProcessGroup, part: std::ops::Range<usize>| {
+            let t = |i: usize| batch[i].narrow(0, part.start, part.len()).unwrap();
+            let (prior, depth, mask, warped, truth) = (t(0), t(1), t(2), t(3), t(4));
+            let input = NetInput {
+                prior: &prior,
+                warped_depth: &depth,
+                mask: &mask,
+                warped: &warped,
+                last: None,
+                last_warped: None,
+            };
+            let (net, varmap) = IvpNet::seeded(ModelConfig { variant: Variant::Full, width_mult: 0.125 }, 5).unwrap();
+            let mut optimizer =
+                Adam::new(named_parameters(&varmap), AdamConfig { lr: 1e-3, ..Default::default() }).unwrap();
+            let losses: Vec<LossValues> = [1.0, 0.5, 0.0]
+                .iter()
+                .map(|&guide| {
+                    training_step(&net, &mut optimizer, &input, &truth, &LossWeights::default(), guide, group).unwrap()
+                })
+                .collect();
+            let params: Vec<Vec<f32>> = named_parameters(&varmap)
+                .iter()
+                .map(|(_, v)| v.as_tensor().flatten_all().unwrap().to_vec1().unwrap())
+                .collect();
+            (losses, params)
+        };
+        let (one_losses, one_params) = train(&SingleProcess, 0..3);
+        let ranks = ThreadGroup::run(2, |group| train(group, [0..2, 2..3][group.rank()].clone()));
+        assert!(ranks[0] == ranks[1], "the ranks hold different losses or parameters");
+        let (two_losses, two_params) = &ranks[0];
+        for (one, two) in one_losses.iter().zip(two_losses) {
+            let pairs = [
+                (one.mse, two.mse),
+                (one.ssim, two.ssim),
+                (one.smooth, two.smooth),
+                (one.guide, two.guide),
+                (one.total, two.total),
+            ];
+            for (a, b) in pairs {
+                assert!((a - b).abs() <= 1e-5 * a.abs().max(1e-3), "{one:?} vs {two:?}");
+            }
+        }
+        assert!(one_losses[1].guide > 0.0 && one_losses[2].guide == 0.0);
+        let largest = one_params.iter().flatten().fold(0f32, |m, v| m.max(v.abs()));
+        let worst =
+            one_params.iter().flatten().zip(two_params.iter().flatten()).fold(0f32, |m, (a, b)| m.max((a - b).abs()));
+        assert!(worst <= 1e-2 * largest, "parameters differ by {worst} (largest {largest})");
+    }
+
+    #[test]
     fn variants_without_the_temporal_prior_are_never_guided_by_it() {
         let (b, h, w) = (1, 16, 16);
         let ramp =
@@ -480,7 +639,9 @@ mod tests {
         for (variant, guided) in [(Variant::Full, true), (Variant::NoDepth, true), (Variant::NoTemporalPrior, false)] {
             let (net, varmap) = IvpNet::seeded(ModelConfig { variant, width_mult: 0.125 }, 1).unwrap();
             let mut optimizer = Adam::new(named_parameters(&varmap), AdamConfig::default()).unwrap();
-            let values = training_step(&net, &mut optimizer, &input, &warped, &LossWeights::default(), 1.0).unwrap();
+            let values =
+                training_step(&net, &mut optimizer, &input, &warped, &LossWeights::default(), 1.0, &SingleProcess)
+                    .unwrap();
             assert_eq!(values.guide > 0.0, guided, "{variant}: guide {}", values.guide);
         }
     }

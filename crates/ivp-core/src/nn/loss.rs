@@ -18,6 +18,11 @@
 //!
 //! Reductions are candle's f32 sums; the normalising counts are exact (summed in f64 on the host,
 //! the mask is data, not a parameter).
+//!
+//! A batch split across processes (data-parallel training) gives each part the counts of the
+//! whole batch ([`LossCounts`], [`ivp_loss_normalised`]): every term is then a sum over pixels
+//! divided by the whole batch's count, so the parts' losses, and their gradients, add up to the
+//! whole batch's.
 
 use candle_core::{bail, DType, Result, Tensor};
 
@@ -57,6 +62,26 @@ pub struct LossTerms {
     pub total: Tensor,
 }
 
+/// The counts that normalise the terms: disocclusion pixels (the MSE and SSIM terms) and pairs of
+/// horizontally and vertically adjacent ones (the two axes of the smoothness term).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct LossCounts {
+    pub pixels: f64,
+    pub pairs_x: f64,
+    pub pairs_y: f64,
+}
+
+impl LossCounts {
+    /// The counts of `mask` (B, 1, H, W), exact.
+    pub fn of(mask: &Tensor) -> Result<Self> {
+        Ok(Self {
+            pixels: count(mask)?,
+            pairs_x: count(&adjacent_pairs(mask, 3)?)?,
+            pairs_y: count(&adjacent_pairs(mask, 2)?)?,
+        })
+    }
+}
+
 /// The loss of ALGORITHMS.md §6.4 on `prediction` and `truth` (B, 3, H, W) in [0, 1], `mask` (B, 1, H, W) of
 /// 0/1 (1 on disocclusions) and the predicted `vectors` (B, 2, H, W) in pixels. Without vectors (the
 /// variant that predicts intensities directly) the smoothness term is 0.
@@ -67,10 +92,24 @@ pub fn ivp_loss(
     vectors: Option<&Tensor>,
     weights: &LossWeights,
 ) -> Result<LossTerms> {
-    let mse = masked_mse_loss(prediction, truth, mask)?;
-    let ssim = masked_ssim_loss(prediction, truth, mask)?;
+    ivp_loss_normalised(prediction, truth, mask, vectors, weights, &LossCounts::of(mask)?)
+}
+
+/// [`ivp_loss`] with every term divided by `counts` instead of the mask's own counts: the part of a
+/// batch's loss that these samples contribute, when `counts` are those of the whole batch.
+pub fn ivp_loss_normalised(
+    prediction: &Tensor,
+    truth: &Tensor,
+    mask: &Tensor,
+    vectors: Option<&Tensor>,
+    weights: &LossWeights,
+    counts: &LossCounts,
+) -> Result<LossTerms> {
+    check_images("ivp_loss", prediction, truth, mask)?;
+    let mse = masked_mean(&squared_error(prediction, truth)?, mask, counts.pixels)?;
+    let ssim = masked_mean(&ssim_loss_map(prediction, truth)?, mask, counts.pixels)?;
     let smooth = match vectors {
-        Some(v) => smoothness_loss(v, truth, mask)?,
+        Some(v) => smoothness(v, truth, mask, counts)?,
         None => Tensor::zeros((), DType::F32, prediction.device())?,
     };
     let total =
@@ -82,7 +121,11 @@ pub fn ivp_loss(
 /// `sum((p - t)^2 m) / max(sum(m) C, 1)`; 0 for an empty mask.
 pub fn masked_mse_loss(prediction: &Tensor, truth: &Tensor, mask: &Tensor) -> Result<Tensor> {
     check_images("masked_mse_loss", prediction, truth, mask)?;
-    masked_mean(&(prediction - truth)?.sqr()?, mask)
+    masked_mean(&squared_error(prediction, truth)?, mask, count(mask)?)
+}
+
+fn squared_error(prediction: &Tensor, truth: &Tensor) -> Result<Tensor> {
+    (prediction - truth)?.sqr()
 }
 
 /// `1 - SSIM` averaged over the mask's pixels and the channels, with the SSIM map of luminance and
@@ -96,6 +139,11 @@ pub fn masked_mse_loss(prediction: &Tensor, truth: &Tensor, mask: &Tensor) -> Re
 /// constant images), so this term can be slightly negative; the reference behaves the same.
 pub fn masked_ssim_loss(prediction: &Tensor, truth: &Tensor, mask: &Tensor) -> Result<Tensor> {
     check_images("masked_ssim_loss", prediction, truth, mask)?;
+    masked_mean(&ssim_loss_map(prediction, truth)?, mask, count(mask)?)
+}
+
+/// `1 - s` per pixel and channel, s the SSIM map of [`masked_ssim_loss`].
+fn ssim_loss_map(prediction: &Tensor, truth: &Tensor) -> Result<Tensor> {
     let (a, b) = (prediction, truth);
     let (mu_a, mu_b) = (gaussian_blur(a)?, gaussian_blur(b)?);
     let (mu_a2, mu_b2) = (mu_a.sqr()?, mu_b.sqr()?);
@@ -105,7 +153,7 @@ pub fn masked_ssim_loss(prediction: &Tensor, truth: &Tensor, mask: &Tensor) -> R
     let contrast = ((&va * &vb)? + SQRT_EPS)?.sqrt()?.affine(2.0, SSIM_C2)?;
     let denominator = (((mu_a2 + mu_b2)? + SSIM_C1)? * ((va + vb)? + SSIM_C2)?)?;
     let s = ((luminance * contrast)? / denominator)?;
-    masked_mean(&s.affine(-1.0, 1.0)?, mask)
+    s.affine(-1.0, 1.0)
 }
 
 /// Edge-aware smoothness of `vectors` (B, 2, H, W) between neighbouring disocclusion pixels, as the
@@ -114,24 +162,39 @@ pub fn masked_ssim_loss(prediction: &Tensor, truth: &Tensor, mask: &Tensor) -> R
 /// `lx = sum(wx |dx vectors| mx) / max(sum(mx), 1)` (summed over both vector components, counted
 /// once per pair); the loss is `lx + ly`. 0 without any such pair.
 pub fn smoothness_loss(vectors: &Tensor, truth: &Tensor, mask: &Tensor) -> Result<Tensor> {
+    smoothness(vectors, truth, mask, &LossCounts::of(mask)?)
+}
+
+fn smoothness(vectors: &Tensor, truth: &Tensor, mask: &Tensor, counts: &LossCounts) -> Result<Tensor> {
     let (b, _, h, w) = truth.dims4()?;
     if vectors.dims() != [b, 2, h, w] || mask.dims() != [b, 1, h, w] {
         bail!("smoothness_loss: vectors {:?}, truth {:?}, mask {:?}", vectors.dims(), truth.dims(), mask.dims());
     }
-    smoothness_along(vectors, truth, mask, 3)? + smoothness_along(vectors, truth, mask, 2)?
+    smoothness_along(vectors, truth, mask, 3, counts.pairs_x)?
+        + smoothness_along(vectors, truth, mask, 2, counts.pairs_y)?
 }
 
-/// One axis (`dim` 3: x, 2: y) of [`smoothness_loss`].
-fn smoothness_along(vectors: &Tensor, truth: &Tensor, mask: &Tensor, dim: usize) -> Result<Tensor> {
+/// One axis (`dim` 3: x, 2: y) of [`smoothness_loss`], divided by `pairs_count`.
+fn smoothness_along(vectors: &Tensor, truth: &Tensor, mask: &Tensor, dim: usize, pairs_count: f64) -> Result<Tensor> {
     let n = vectors.dim(dim)?;
     if n < 2 {
         return Tensor::zeros((), DType::F32, vectors.device());
     }
     let diff = |t: &Tensor| t.narrow(dim, 1, n - 1)? - t.narrow(dim, 0, n - 1)?;
-    let pairs = (mask.narrow(dim, 1, n - 1)? * mask.narrow(dim, 0, n - 1)?)?;
+    let pairs = adjacent_pairs(mask, dim)?;
     let edge = (abs(&diff(truth)?)?.mean_keepdim(1)? * -EDGE_SHARPNESS)?.exp()?;
     let weighted = abs(&diff(vectors)?)?.broadcast_mul(&(edge * &pairs)?)?;
-    normalise(&weighted.sum_all()?, count(&pairs)?)
+    normalise(&weighted.sum_all()?, pairs_count)
+}
+
+/// 1 where a mask pixel and its neighbour along `dim` (3: x, 2: y) are both 1; one shorter along
+/// `dim` (empty for a side of 1).
+fn adjacent_pairs(mask: &Tensor, dim: usize) -> Result<Tensor> {
+    let n = mask.dim(dim)?;
+    if n < 2 {
+        return mask.narrow(dim, 0, 0);
+    }
+    mask.narrow(dim, 1, n - 1)? * mask.narrow(dim, 0, n - 1)?
 }
 
 /// `|x|` whose gradient is sign(x), 0 at 0 (PyTorch's), rather than candle's +1 at 0.
@@ -139,10 +202,11 @@ fn abs(x: &Tensor) -> Result<Tensor> {
     x * x.sign()?.detach()
 }
 
-/// `sum(x m) / max(sum(m) C, 1)` for x (B, C, H, W) and m (B, 1, H, W).
-fn masked_mean(x: &Tensor, mask: &Tensor) -> Result<Tensor> {
+/// `sum(x m) / max(pixels C, 1)` for x (B, C, H, W) and m (B, 1, H, W); `pixels` is the mask's
+/// count (or the whole batch's).
+fn masked_mean(x: &Tensor, mask: &Tensor, pixels: f64) -> Result<Tensor> {
     let c = x.dim(1)?;
-    normalise(&x.broadcast_mul(mask)?.sum_all()?, count(mask)? * c as f64)
+    normalise(&x.broadcast_mul(mask)?.sum_all()?, pixels * c as f64)
 }
 
 /// The number of mask pixels (the sum of the mask), exact: summed in f64.
@@ -245,6 +309,41 @@ mod tests {
             assert!((scalar(a) - scalar(b)).abs() <= 1e-6 * scalar(b).abs(), "{a} vs {b}");
             assert!(scalar(b) > 0.0);
         }
+    }
+
+    #[test]
+    fn parts_of_a_batch_normalised_by_its_counts_add_up_to_the_whole() {
+        // A batch of 3 split as [0, 1) and [1, 3), each part divided by the whole batch's counts
+        // (data-parallel training): the parts' terms and gradients sum to the whole batch's.
+        let [_, c, h, w] = SHAPE;
+        let shape = [3, c, h, w];
+        let (p, t, m) = (uniform(&shape, 30), uniform(&shape, 31), holes(3, h, w, 0.3, 32));
+        let v = (random(&[3, 2, h, w], 33) * 3.0).unwrap();
+        let weights = LossWeights::default();
+        let (whole, gp, gv) = evaluate(&p, &t, &m, &v, &weights);
+        let counts = LossCounts::of(&m).unwrap();
+        let (mut sum, mut grad_p, mut grad_v) = ([0f64; 4], Vec::new(), Vec::new());
+        for (start, len) in [(0, 1), (1, 2)] {
+            let part = |x: &Tensor| x.narrow(0, start, len).unwrap();
+            let (pp, pv) = (Var::from_tensor(&part(&p)).unwrap(), Var::from_tensor(&part(&v)).unwrap());
+            let terms = ivp_loss_normalised(&pp, &part(&t), &part(&m), Some(&pv), &weights, &counts).unwrap();
+            for (s, term) in sum.iter_mut().zip([&terms.mse, &terms.ssim, &terms.smooth, &terms.total]) {
+                *s += scalar(term) as f64;
+            }
+            let grads = terms.total.backward().unwrap();
+            grad_p.extend(flat(grads.get(&pp).unwrap()));
+            grad_v.extend(flat(grads.get(&pv).unwrap()));
+        }
+        for (s, term) in sum.iter().zip([&whole.mse, &whole.ssim, &whole.smooth, &whole.total]) {
+            assert!((s - scalar(term) as f64).abs() <= 1e-6 * s.abs(), "{s} vs {term}");
+        }
+        for (parts, whole) in [(grad_p, flat(&gp)), (grad_v, flat(&gv))] {
+            let largest = whole.iter().fold(0f32, |a, g| a.max(g.abs()));
+            assert!(parts.iter().zip(&whole).all(|(a, b)| (a - b).abs() <= 1e-5 * largest));
+        }
+        // With its own counts, the whole batch's loss is exactly `ivp_loss`.
+        let own = ivp_loss_normalised(&p, &t, &m, Some(&v), &weights, &counts).unwrap();
+        assert_eq!(scalar(&own.total), scalar(&whole.total));
     }
 
     #[test]

@@ -44,6 +44,11 @@ impl Adam {
         self.steps
     }
 
+    /// The parameters, in name order.
+    pub fn parameters(&self) -> &[(String, Var)] {
+        &self.params
+    }
+
     pub fn config(&self) -> &AdamConfig {
         &self.config
     }

@@ -80,6 +80,9 @@ pub struct SampleGenerator {
     config: SampleConfig,
     split: Split,
     cache: ClipCache,
+    /// The samples of each batch this generator makes: all of them, or one process's part of a
+    /// batch split across processes ([`SampleGenerator::with_batch_part`]).
+    batch_part: Range<usize>,
 }
 
 impl SampleGenerator {
@@ -94,7 +97,22 @@ impl SampleGenerator {
         if source.clip_count() == Some(0) {
             return invalid("the clip source holds no clip");
         }
-        Ok(Self { source, config, split, cache: ClipCache::default() })
+        let batch_part = 0..config.batch_size;
+        Ok(Self { source, config, split, cache: ClipCache::default(), batch_part })
+    }
+
+    /// Makes batches of samples `part` of each step only (a range within `0..batch_size`): one
+    /// process's part of a batch split across processes. Each sample is the one the whole batch
+    /// holds at that index, so the parts of all processes make up the whole batch.
+    pub fn with_batch_part(mut self, part: Range<usize>) -> Result<Self> {
+        if part.is_empty() || part.end > self.config.batch_size {
+            return Err(DataError::Sampling {
+                origin: PathBuf::from("sample configuration"),
+                problem: format!("samples {part:?} are not a part of a batch of {}", self.config.batch_size),
+            });
+        }
+        self.batch_part = part;
+        Ok(self)
     }
 
     pub fn config(&self) -> &SampleConfig {
@@ -158,12 +176,12 @@ impl SampleGenerator {
         })
     }
 
-    /// The samples of batch `step`.
+    /// The samples of batch `step` (those of its part, see [`SampleGenerator::with_batch_part`]).
     pub fn samples(&self, step: u64) -> Result<Vec<Sample>> {
-        (0..self.config.batch_size).map(|j| self.sample(step, j)).collect()
+        self.batch_part.clone().map(|j| self.sample(step, j)).collect()
     }
 
-    /// Batch `step` as tensors.
+    /// Batch `step` (its part) as tensors.
     pub fn batch(&self, step: u64) -> Result<Batch> {
         Ok(Batch::from_samples(step, &self.samples(step)?))
     }

@@ -9,8 +9,9 @@ use clap::Args;
 
 use crate::checkpoint::export_model;
 use crate::demo::{demo_config, demo_methods, evaluation_data, model_path, plan_training, DemoTraining};
+use crate::distributed::{broadcast_from_root, ProcessGroup, SingleProcess};
 use crate::eval::{evaluate, format_table, DEFAULT_TARGETS};
-use crate::train::{train, RunOptions, TrainConfig};
+use crate::train::{train, train_on, RunOptions, TrainConfig};
 
 #[derive(Args)]
 pub struct TrainArgs {
@@ -86,11 +87,43 @@ pub struct ExportArgs {
     out: PathBuf,
 }
 
+/// `ivp train`, in one process or (with the `mpi` feature, under `mpirun` or `srun`) as one rank of
+/// a data-parallel job.
 pub fn run_train(args: TrainArgs, progress: bool) -> Result<()> {
-    let config = train_config(&args)?;
-    let stop = stop_on_ctrl_c()?;
+    #[cfg(feature = "mpi")]
+    if let Some(group) = crate::distributed::MpiGroup::join()? {
+        group.share_cores_among_local_ranks();
+        let result = run_train_on(&group, args, progress);
+        if let (Err(e), true) = (&result, group.size() > 1) {
+            // The other ranks may be waiting for this one in a collective operation: end the whole
+            // job (the launcher names the rank that aborted). Rank 0's last checkpoint stays.
+            eprintln!("error on rank {} of {}: {e:#}", group.rank(), group.size());
+            group.abort(1);
+        }
+        return result;
+    }
+    run_train_on(&SingleProcess, args, progress)
+}
+
+fn run_train_on(group: &dyn ProcessGroup, args: TrainArgs, progress: bool) -> Result<()> {
+    let is_root = group.rank() == 0;
+    // Every rank runs rank 0's configuration: on resume it comes from the run folder, which only
+    // rank 0 reads.
+    let root_config = is_root.then(|| train_config(&args)).transpose()?;
+    let config_json = broadcast_from_root(group, root_config.map(|c| serde_json::to_vec(&c)).transpose()?);
+    let config: TrainConfig = serde_json::from_slice(&config_json).context("the configuration from rank 0")?;
+    let stop = stop_on_ctrl_c(is_root)?;
+    if !is_root {
+        let options = RunOptions { resume: args.resume, progress: false, stop: Some(stop), stop_at: args.stop_at };
+        train_on(group, &config, &args.out, &options)?;
+        return Ok(());
+    }
+    let ranks = match group.size() {
+        1 => String::new(),
+        n => format!(" on {n} ranks"),
+    };
     println!(
-        "training {} (width {}) on {} for {} steps of {} crops of {}x{} -> {}",
+        "training {} (width {}) on {} for {} steps of {} crops of {}x{}{ranks} -> {}",
         config.variant,
         config.width_mult,
         config.data.as_ref().map_or("generated scenes".to_string(), |d| d.display().to_string()),
@@ -101,8 +134,17 @@ pub fn run_train(args: TrainArgs, progress: bool) -> Result<()> {
         args.out.display()
     );
     let options = RunOptions { resume: args.resume, progress, stop: Some(stop), stop_at: args.stop_at };
-    let summary = train(&config, &args.out, &options)?;
+    let summary = train_on(group, &config, &args.out, &options)?;
     let minutes = summary.elapsed.as_secs_f64() / 60.0;
+    if group.size() > 1 {
+        let busy = group.time_in_collectives().as_secs_f64();
+        println!(
+            "{} ranks: rank 0 spent {busy:.2} s in collective operations (waiting for the others included), \
+             {:.1} ms a step",
+            group.size(),
+            1e3 * busy / summary.steps_run.max(1) as f64
+        );
+    }
     if let (Some(v), Some(f)) = (summary.last_validation, summary.fill) {
         println!(
             "validation after {} steps ({minutes:.1} min): D-MSE {:.1} D-SSIM {:.4}; fill D-MSE {:.1} D-SSIM {:.4}",
@@ -143,15 +185,17 @@ fn train_config(args: &TrainArgs) -> Result<TrainConfig> {
 }
 
 /// A flag the first Ctrl-C sets, so that training stops after its step with a checkpoint instead
-/// of losing the steps since the last one.
-fn stop_on_ctrl_c() -> Result<Arc<AtomicBool>> {
+/// of losing the steps since the last one (with the `mpi` feature, SIGTERM too). `tell` says so.
+fn stop_on_ctrl_c(tell: bool) -> Result<Arc<AtomicBool>> {
     let stop = Arc::new(AtomicBool::new(false));
     let flag = stop.clone();
     ctrlc::set_handler(move || {
         if flag.swap(true, Ordering::SeqCst) {
             std::process::exit(130); // a second Ctrl-C: leave at once
         }
-        eprintln!("\nCtrl-C: stopping after this step with a checkpoint (press again to quit at once)");
+        if tell {
+            eprintln!("\nCtrl-C: stopping after this step with a checkpoint (press again to quit at once)");
+        }
     })
     .context("installing the Ctrl-C handler")?;
     Ok(stop)
