@@ -181,3 +181,28 @@ fn committed_fixtures_match_a_pytorch_training_step() {
         assert!(fixture.is_empty(), "{file}: tensors not compared: {:?}", fixture.keys().collect::<Vec<_>>());
     }
 }
+
+#[test]
+fn committed_loss_fixture_matches_at_the_kinks() {
+    let path = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("fixtures/torch_parity/losses.safetensors");
+    let mut fixture =
+        candle_core::safetensors::load(&path, &Device::Cpu).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    let mut take = |name: &str| fixture.remove(name).unwrap_or_else(|| panic!("losses: no tensor `{name}`"));
+    let prediction = Var::from_tensor(&take("input.prediction")).unwrap();
+    let vectors = Var::from_tensor(&take("input.vectors")).unwrap();
+    let (truth, hole) = (take("input.truth"), take("input.hole"));
+    let loss =
+        ivp_loss(prediction.as_tensor(), &truth, &hole, Some(vectors.as_tensor()), &LossWeights::default()).unwrap();
+    for (name, ours) in [("mse", &loss.mse), ("ssim", &loss.ssim), ("smooth", &loss.smooth)] {
+        let (ours, theirs) =
+            (ours.to_scalar::<f32>().unwrap(), take(&format!("ref.{name}")).to_vec1::<f32>().unwrap()[0]);
+        assert!((ours - theirs).abs() <= 1e-5, "loss {name}: {ours} vs {theirs}");
+    }
+    let gradients = loss.total.backward().unwrap();
+    for (name, var) in [("prediction", &prediction), ("vectors", &vectors)] {
+        let ours = gradients.get(var.as_tensor()).expect("a gradient");
+        let (worst, scale) = difference(ours, &take(&format!("grad.input.{name}")), name, 1e-6);
+        assert!(worst <= 1e-4 * scale, "gradient of the {name}: differs by {worst} (largest {scale})");
+    }
+    assert!(fixture.is_empty(), "losses: tensors not compared: {:?}", fixture.keys().collect::<Vec<_>>());
+}
