@@ -185,7 +185,8 @@ fn train_config(args: &TrainArgs) -> Result<TrainConfig> {
 }
 
 /// A flag the first Ctrl-C sets, so that training stops after its step with a checkpoint instead
-/// of losing the steps since the last one (with the `mpi` feature, SIGTERM too). `tell` says so.
+/// of losing the steps since the last one. With the `mpi` feature SIGTERM sets it too: that is how
+/// `mpirun` (on Ctrl-C) and Slurm (`scancel`, the time limit) stop a job. `tell` says so.
 fn stop_on_ctrl_c(tell: bool) -> Result<Arc<AtomicBool>> {
     let stop = Arc::new(AtomicBool::new(false));
     let flag = stop.clone();
@@ -194,7 +195,7 @@ fn stop_on_ctrl_c(tell: bool) -> Result<Arc<AtomicBool>> {
             std::process::exit(130); // a second Ctrl-C: leave at once
         }
         if tell {
-            eprintln!("\nCtrl-C: stopping after this step with a checkpoint (press again to quit at once)");
+            eprintln!("\nstopping after this step with a checkpoint (Ctrl-C again to quit at once)");
         }
     })
     .context("installing the Ctrl-C handler")?;
