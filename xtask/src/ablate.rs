@@ -14,6 +14,7 @@ use std::process::Command;
 
 use anyhow::{bail, Context, Result};
 
+use crate::charts::{self, Bar, BarChart, BarGroup};
 use crate::run;
 
 /// The variants trained, in the order of the table.
@@ -112,8 +113,10 @@ pub fn ablate(ivp: &Path, sweep: &Sweep) -> Result<()> {
     let (csv, md) = (sweep.out.join("ablations.csv"), sweep.out.join("ablations.md"));
     std::fs::write(&csv, to_csv(&scores)).with_context(|| format!("writing {}", csv.display()))?;
     std::fs::write(&md, to_markdown(&scores, sweep)).with_context(|| format!("writing {}", md.display()))?;
+    let svg = sweep.out.join("ablations.svg");
+    charts::write_bar_chart(&svg, &d_mse_chart(&scores))?;
     print!("{}", std::fs::read_to_string(&md)?);
-    println!("written: {} and {}", csv.display(), md.display());
+    println!("written: {}, {} and {}", csv.display(), md.display(), svg.display());
     Ok(())
 }
 
@@ -156,7 +159,7 @@ fn train(ivp: &Path, sweep: &Sweep, variant: &str, seed: u64, dir: &Path) -> Res
 }
 
 /// The smoke test's recipe: seconds, not minutes.
-const QUICK_RECIPE: &str = "width_mult = 0.125\nsteps = 4\nbatch = 2\ncrop = 32\nguide_steps = 2\n\
+pub const QUICK_RECIPE: &str = "width_mult = 0.125\nsteps = 4\nbatch = 2\ncrop = 32\nguide_steps = 2\n\
                             validation_samples = 2\nlog_every = 1\nvalidate_every = 0\ncheckpoint_every = 2\n";
 
 /// Minutes of training of a finished run: the last `elapsed_s` of its `metrics.csv`.
@@ -190,18 +193,66 @@ fn mean_std(values: &[f64]) -> (f64, f64) {
     (mean, var.sqrt())
 }
 
+/// The rows of the table, `fill` first, as the chart and the tables order them.
+fn table_rows() -> impl Iterator<Item = &'static str> {
+    std::iter::once("fill").chain(ROWS.iter().map(|r| r.0))
+}
+
+/// The datasets of `scores`, in name order.
+fn datasets_of(scores: &[Score]) -> Vec<&str> {
+    let names: std::collections::BTreeSet<&str> = scores.iter().map(|s| s.dataset.as_str()).collect();
+    names.into_iter().collect()
+}
+
+/// D-MSE per row as bars, one group per dataset, ± the standard deviation over seeds (no error bar
+/// from a single seed: there is no spread to show).
+fn d_mse_chart(scores: &[Score]) -> BarChart {
+    let seeds = scores.iter().map(|s| s.seed).collect::<std::collections::BTreeSet<_>>().len();
+    let spread = if seeds > 1 {
+        format!("mean ± standard deviation over {seeds} seeds")
+    } else {
+        "n = 1 seed: no spread to show".to_string()
+    };
+    let groups = datasets_of(scores)
+        .into_iter()
+        .map(|dataset| BarGroup {
+            name: dataset.to_string(),
+            bars: table_rows()
+                .map(|row| {
+                    let values: Vec<f64> =
+                        scores.iter().filter(|s| s.row == row && s.dataset == dataset).map(|s| s.d_mse).collect();
+                    bar(&values)
+                })
+                .collect(),
+        })
+        .collect();
+    BarChart {
+        title: format!("Ablations: D-MSE by row, {spread} (lower is better)"),
+        y_label: "D-MSE (8-bit levels²)".to_string(),
+        series: table_rows().map(str::to_string).collect(),
+        groups,
+    }
+}
+
+/// The bar of `values`: their mean, and their spread when there are two or more.
+fn bar(values: &[f64]) -> Option<Bar> {
+    if values.is_empty() {
+        return None;
+    }
+    let (mean, std) = mean_std(values);
+    Some(Bar { mean, std: (values.len() > 1).then_some(std) })
+}
+
 fn to_markdown(scores: &[Score], sweep: &Sweep) -> String {
     let mut out = String::new();
     let seeds: Vec<String> = sweep.seeds.iter().map(u64::to_string).collect();
     let _ = writeln!(out, "# Ablations: mean ± standard deviation over seeds {}\n", seeds.join(", "));
-    let datasets: Vec<&String> =
-        scores.iter().map(|s| &s.dataset).collect::<std::collections::BTreeSet<_>>().into_iter().collect();
-    for dataset in datasets {
+    for dataset in datasets_of(scores) {
         let _ = writeln!(out, "## {dataset}\n");
         let _ = writeln!(out, "| row | D-MSE | D-SSIM | TC | ms/frame | training minutes |");
         let _ = writeln!(out, "|---|---|---|---|---|---|");
-        for row in std::iter::once("fill").chain(ROWS.iter().map(|r| r.0)) {
-            let of: Vec<&Score> = scores.iter().filter(|s| s.row == row && &s.dataset == dataset).collect();
+        for row in table_rows() {
+            let of: Vec<&Score> = scores.iter().filter(|s| s.row == row && s.dataset == dataset).collect();
             if of.is_empty() {
                 continue;
             }
@@ -225,6 +276,7 @@ fn to_markdown(scores: &[Score], sweep: &Sweep) -> String {
         }
         out.push('\n');
     }
+    out.push_str("![D-MSE per row and dataset](ablations.svg)\n\n");
     let steps = sweep.steps.map_or(String::new(), |s| format!(" --steps {s}"));
     let quick = if sweep.quick { " --quick" } else { "" };
     let _ = writeln!(
@@ -254,5 +306,30 @@ mod tests {
         assert_eq!(mean_std(&[2.0, 4.0, 6.0]), (4.0, 2.0));
         assert_eq!(mean_std(&[5.0]), (5.0, 0.0));
         assert!(check_seeds(&[0, 1, 1]).is_err() && check_seeds(&[]).is_err() && check_seeds(&[0, 1]).is_ok());
+    }
+
+    fn score(row: &'static str, seed: u64, dataset: &str, d_mse: f64) -> Score {
+        let dataset = dataset.to_string();
+        Score { row, seed, dataset, d_mse, d_ssim: 0.8, tc: None, ms_per_frame: 3.0, train_minutes: 1.0 }
+    }
+
+    #[test]
+    fn the_chart_has_a_group_per_dataset_and_error_bars_only_over_seeds() {
+        let scores = [
+            score("fill", 0, "generated", 580.0),
+            score("full", 0, "generated", 400.0),
+            score("full", 1, "generated", 440.0),
+            score("full", 0, "blender-dev", 450.0),
+        ];
+        let chart = d_mse_chart(&scores);
+        assert_eq!(chart.series, ["fill", "intensity", "no-tg", "no-depth", "no-iter", "full"]);
+        let names: Vec<&str> = chart.groups.iter().map(|g| g.name.as_str()).collect();
+        assert_eq!(names, ["blender-dev", "generated"]);
+        let generated = &chart.groups[1].bars;
+        assert_eq!(generated[0], Some(Bar { mean: 580.0, std: None }));
+        assert_eq!(generated[1], None);
+        assert_eq!(generated[5], Some(Bar { mean: 420.0, std: Some(mean_std(&[400.0, 440.0]).1) }));
+        assert!(chart.title.contains("2 seeds"));
+        assert!(d_mse_chart(&scores[..2]).title.contains("n = 1"));
     }
 }

@@ -1,11 +1,14 @@
-//! Project chores: `cargo xtask bench` (criterion benchmarks, and with `--torch` ivp's training
-//! step and inference against shared/bench/torch_reference.py in the same run), and
-//! `cargo xtask ablate` (the paper's ablation table over several seeds, `ablate.rs`).
+//! Project chores: `cargo xtask bench` (criterion benchmarks; with `--torch` ivp's training step and
+//! inference against shared/bench/torch_reference.py in the same run; with `--speed-vs-error` time
+//! per frame against D-MSE, `speed_vs_error.rs`), and `cargo xtask ablate` (the paper's ablation
+//! table over several seeds, `ablate.rs`). Their charts are drawn in `charts.rs`.
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
 mod ablate;
+mod charts;
+mod speed_vs_error;
 
 use anyhow::{bail, Context, Result};
 use clap::{Parser, Subcommand};
@@ -32,7 +35,7 @@ enum Task {
         #[arg(long)]
         steps: Option<u64>,
         /// The Blender clips to score on (besides the generated held-out split).
-        #[arg(long, default_value = "../shared/data/blender-dev")]
+        #[arg(long, default_value = "data/blender-dev")]
         data: PathBuf,
         /// Run folders go to OUT/<variant>/seed<k>, the tables to OUT/ablations.{md,csv}.
         #[arg(long, default_value = "runs/ablate")]
@@ -55,13 +58,48 @@ enum Task {
         /// both figures and their ratio.
         #[arg(long)]
         torch: bool,
-        /// Threads for both (the reference's default is 2).
+        /// Threads of ivp (and of the PyTorch reference, whose default is 2).
         #[arg(long, default_value_t = 2)]
         threads: usize,
         /// Runs of the training step (inference runs 3 times).
         #[arg(long, default_value_t = 5)]
         runs: usize,
+        #[command(flatten)]
+        speed: SpeedArgs,
     },
+}
+
+/// `cargo xtask bench --speed-vs-error`.
+#[derive(clap::Args)]
+struct SpeedArgs {
+    /// Instead of the criterion benchmarks: time per frame against D-MSE of copy, warp, fill,
+    /// oracle, telea and the trained models (P = 1, 2, 3, sparse and dense) with `ivp eval` at
+    /// 320x240 and 1920x1080, written to OUT/speed_vs_error.{csv,md,svg} with the Pareto front.
+    #[arg(long)]
+    speed_vs_error: bool,
+    /// Trained models, WIDTH=FILE (those whose file is missing are skipped, with a warning).
+    /// Train one with `ivp train --synthetic --width-mult W --out runs/width-W`.
+    #[arg(long, value_delimiter = ',', default_values_t = speed_vs_error::default_models())]
+    models: Vec<String>,
+    /// The 320x240 clips (generated clips stand in when the folder is missing).
+    #[arg(long, default_value = "data/blender-dev")]
+    data: PathBuf,
+    /// The 1920x1080 Blender clip, scored besides a generated 1920x1080 clip when it exists.
+    #[arg(long, default_value = "../shared/data/blender-dev-hd")]
+    data_hd: PathBuf,
+    /// Folder of the report.
+    #[arg(long, default_value = "results")]
+    out: PathBuf,
+    /// Folder of the generated clips, scores and the quick model (reused from one run to the next).
+    #[arg(long, default_value = "target/speed-vs-error")]
+    work: PathBuf,
+    /// A test of the pipeline: tiny generated clips, a model trained for 4 steps, the dev build
+    /// of ivp; the report goes to target/speed-vs-error-quick unless --out is given.
+    #[arg(long)]
+    quick: bool,
+    /// Use this ivp binary instead of building one.
+    #[arg(long)]
+    ivp: Option<PathBuf>,
 }
 
 fn main() -> Result<()> {
@@ -77,9 +115,50 @@ fn main() -> Result<()> {
             let out = if quick && out == Path::new("runs/ablate") { PathBuf::from("runs/ablate-quick") } else { out };
             ablate::ablate(&ivp, &ablate::Sweep { seeds, steps, blender: data, out, quick })
         }
+        Task::Bench { threads, speed, .. } if speed.speed_vs_error => bench_speed_vs_error(threads, speed),
         Task::Bench { torch: true, threads, runs, .. } => bench_against_torch(threads, runs),
         Task::Bench { filter, .. } => bench(filter.as_deref()),
     }
+}
+
+fn bench_speed_vs_error(threads: usize, args: SpeedArgs) -> Result<()> {
+    let ivp = match args.ivp {
+        Some(path) if path.is_file() => path,
+        Some(path) => bail!("--ivp {}: no such file", path.display()),
+        None if args.quick => build_ivp_debug(&root())?,
+        None => build_ivp(&root())?,
+    };
+    // A quick run must not overwrite the committed report, nor reuse the real run's clips.
+    let (out, work) = if args.quick {
+        let out =
+            if args.out == Path::new("results") { PathBuf::from("target/speed-vs-error-quick") } else { args.out };
+        (out.clone(), out.join("work"))
+    } else {
+        (args.out, args.work)
+    };
+    let options = speed_vs_error::Options {
+        models: speed_vs_error::parse_models(&args.models)?,
+        data: args.data,
+        data_hd: args.data_hd,
+        out,
+        work,
+        threads,
+        quick: args.quick,
+        command: typed_command(),
+    };
+    speed_vs_error::speed_vs_error(&ivp, &options)
+}
+
+/// The command as typed (`cargo xtask` and this program's arguments), for reports.
+fn typed_command() -> String {
+    let args = std::env::args().skip(1).map(|a| {
+        if a.is_empty() || a.contains(|c: char| c.is_whitespace() || "'\"$`".contains(c)) {
+            format!("'{}'", a.replace('\'', "'\\''"))
+        } else {
+            a
+        }
+    });
+    std::iter::once("cargo xtask".to_string()).chain(args).collect::<Vec<_>>().join(" ")
 }
 
 fn bench(filter: Option<&str>) -> Result<()> {

@@ -1,99 +1,178 @@
-//! `loss.png` of a run: the training loss (top) and the validation D-MSE against `fill` (bottom),
-//! both over steps. Drawn directly on an image: two line charts do not justify a plotting stack
-//! that needs system fonts.
+//! `loss.png` of a run: the training loss and its terms (top) and the validation D-MSE against
+//! `fill` (bottom), both over steps, with ticks, axis labels and a legend; a log axis where the
+//! values span decades. Drawn with plotters through ivp-plot (the font is compiled in).
 
 use std::path::Path;
 
-use anyhow::Result;
+use anyhow::{anyhow, Result};
 use ivp_core::RgbImage;
+use ivp_plot::plotters::coord::Shift;
+use ivp_plot::plotters::prelude::*;
+use ivp_plot::{draw_legend, register_font, tick_label, Axis, LegendEntry, Mark, FONT};
 
 use crate::metrics_csv::MetricsRow;
-use crate::sheet::draw_text_in;
 
-const WIDTH: usize = 900;
-const PANEL_HEIGHT: usize = 300;
-const MARGIN_LEFT: usize = 110;
-const MARGIN: usize = 40;
-const BLACK: [f32; 3] = [0.0, 0.0, 0.0];
-const GREY: [f32; 3] = [0.8, 0.8, 0.8];
-const BLUE: [f32; 3] = [0.1, 0.3, 0.85];
-const ORANGE: [f32; 3] = [0.9, 0.45, 0.05];
+const WIDTH: u32 = 1150;
+const PANEL_HEIGHT: u32 = 380;
+/// Room for the legend, right of each plot.
+const LEGEND_WIDTH: u32 = 250;
+
+/// A line through points (step, value), drawn in its colour with a legend entry.
+struct Curve {
+    label: String,
+    colour: RGBColor,
+    points: Vec<(f64, f64)>,
+    /// Mark every point (sparse series such as the validations).
+    markers: bool,
+}
+
+/// One chart: its title, the label of its y axis, and its curves.
+struct Panel {
+    title: &'static str,
+    y_label: &'static str,
+    curves: Vec<Curve>,
+}
+
+type Area<'a> = DrawingArea<BitMapBackend<'a>, Shift>;
 
 /// Writes the two panels for `rows` to `path` (PNG, atomically).
 pub fn write_loss_curve(path: &Path, rows: &[MetricsRow]) -> Result<()> {
-    let mut image = RgbImage::filled(WIDTH, 2 * PANEL_HEIGHT, [1.0, 1.0, 1.0]);
-    let loss: Vec<(f64, f64)> = rows.iter().map(|r| (r.step as f64, r.loss.total as f64)).collect();
-    let validation: Vec<(f64, f64)> =
-        rows.iter().filter_map(|r| r.validation.map(|v| (r.step as f64, v.d_mse))).collect();
-    let fill = rows.first().map(|r| r.fill.d_mse);
+    register_font();
     let max_step = rows.last().map_or(1.0, |r| r.step as f64).max(1.0);
-    draw_panel(&mut image, 0, "training loss", &[(&loss, BLUE, false)], max_step);
-    let fill_line: Vec<(f64, f64)> = fill.map_or(Vec::new(), |f| vec![(0.0, f), (max_step, f)]);
-    draw_panel(
-        &mut image,
-        PANEL_HEIGHT,
-        "validation D-MSE (blue) vs fill (orange)",
-        &[(&validation, BLUE, true), (&fill_line, ORANGE, false)],
-        max_step,
-    );
+    let panels = [loss_panel(rows), validation_panel(rows, max_step)];
+    let (width, height) = (WIDTH, 2 * PANEL_HEIGHT);
+    let mut pixels = vec![255u8; (width * height * 3) as usize];
+    {
+        let root = BitMapBackend::with_buffer(&mut pixels, (width, height)).into_drawing_area();
+        for (area, panel) in root.split_evenly((2, 1)).iter().zip(&panels) {
+            let (plot, legend) = area.split_horizontally(WIDTH - LEGEND_WIDTH);
+            draw_panel(&plot, &legend, panel, max_step)?;
+        }
+        root.present().map_err(|e| anyhow!("drawing the loss curve: {e}"))?;
+    }
+    let colours = pixels.chunks_exact(3).map(|p| [p[0], p[1], p[2]].map(|b| b as f32 / 255.0));
+    let image = RgbImage::from_pixels(width as usize, height as usize, colours.collect());
     ivp_data::write_rgb_png(path, &image)?;
     Ok(())
 }
 
-/// One chart in the band of rows `top..top + PANEL_HEIGHT`; the y range covers every series.
-/// A line through points (x, y), its colour, and whether to mark the points.
-type Series<'a> = (&'a [(f64, f64)], [f32; 3], bool);
+/// Reads one loss term from a row.
+type LossTerm = fn(&MetricsRow) -> f32;
 
-fn draw_panel(image: &mut RgbImage, top: usize, title: &str, series: &[Series<'_>], max_x: f64) {
-    let (x0, x1) = (MARGIN_LEFT, WIDTH - MARGIN);
-    let (y0, y1) = (top + MARGIN, top + PANEL_HEIGHT - MARGIN);
-    draw_text_in(image, x0, top + 10, title, x1 - x0, BLACK);
-    let values = series.iter().flat_map(|(s, _, _)| s.iter().map(|p| p.1)).filter(|v| v.is_finite());
-    let (lo, hi) = values.fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), v| (lo.min(v), hi.max(v)));
-    if lo > hi {
-        draw_text_in(image, x0, (y0 + y1) / 2, "no data yet", x1 - x0, BLACK);
-        return;
-    }
-    let pad = ((hi - lo) * 0.05).max(1e-9);
-    let (lo, hi) = ((lo - pad).max(0.0), hi + pad);
-    let to_px = |(x, y): (f64, f64)| -> (f64, f64) {
-        (x0 as f64 + (x / max_x) * (x1 - x0) as f64, y1 as f64 - (y - lo) / (hi - lo) * (y1 - y0) as f64)
-    };
-    for i in 0..=4 {
-        let y = y1 - i * (y1 - y0) / 4;
-        line(image, (x0 as f64, y as f64), (x1 as f64, y as f64), GREY);
-        let label = format!("{:.3}", lo + (hi - lo) * i as f64 / 4.0);
-        draw_text_in(image, 4, y.saturating_sub(8), &label, MARGIN_LEFT - 8, BLACK);
-    }
-    line(image, (x0 as f64, y0 as f64), (x0 as f64, y1 as f64), BLACK);
-    line(image, (x0 as f64, y1 as f64), (x1 as f64, y1 as f64), BLACK);
-    draw_text_in(image, x1 - 16 * 10, y1 + 8, &format!("step {}", max_x as u64), 16 * 10, BLACK);
-    for (points, colour, markers) in series {
-        for pair in points.windows(2) {
-            line(image, to_px(pair[0]), to_px(pair[1]), *colour);
-        }
-        if *markers {
-            for &p in points.iter() {
-                let (px, py) = to_px(p);
-                for d in -2..=2 {
-                    line(image, (px - 2.0, py + d as f64), (px + 2.0, py + d as f64), *colour);
-                }
-            }
-        }
-    }
+/// The training loss and each of its terms that is not always 0.
+fn loss_panel(rows: &[MetricsRow]) -> Panel {
+    let terms: [(&str, LossTerm); 5] = [
+        ("total (weighted sum)", |r| r.loss.total),
+        ("masked MSE", |r| r.loss.mse),
+        ("SSIM term", |r| r.loss.ssim),
+        ("smoothness (unweighted)", |r| r.loss.smooth),
+        ("guide term (weighted)", |r| r.loss.guide),
+    ];
+    let curves = terms
+        .into_iter()
+        .enumerate()
+        .map(|(i, (label, value))| Curve {
+            label: label.to_string(),
+            colour: ivp_plot::colour(i),
+            points: rows.iter().map(|r| (r.step as f64, value(r) as f64)).collect(),
+            markers: false,
+        })
+        .filter(|c| c.points.iter().any(|p| p.1 != 0.0))
+        .collect();
+    Panel { title: "Training loss (mean over each logging window)", y_label: "loss", curves }
 }
 
-/// A one-pixel line from `a` to `b`, clipped to the image.
-fn line(image: &mut RgbImage, a: (f64, f64), b: (f64, f64), colour: [f32; 3]) {
-    if !(a.0.is_finite() && a.1.is_finite() && b.0.is_finite() && b.1.is_finite()) {
-        return;
+/// The network's validation D-MSE beside `fill`'s on the same crops (a constant).
+fn validation_panel(rows: &[MetricsRow], max_step: f64) -> Panel {
+    let validation: Vec<(f64, f64)> =
+        rows.iter().filter_map(|r| r.validation.map(|v| (r.step as f64, v.d_mse))).collect();
+    let mut curves =
+        vec![Curve { label: "network".to_string(), colour: ivp_plot::colour(0), points: validation, markers: true }];
+    if let Some(fill) = rows.first().map(|r| r.fill.d_mse) {
+        curves.push(Curve {
+            label: format!("fill ({fill:.1})"),
+            colour: ivp_plot::colour(1),
+            points: vec![(0.0, fill), (max_step, fill)],
+            markers: false,
+        });
     }
-    let n = (b.0 - a.0).abs().max((b.1 - a.1).abs()).ceil().clamp(1.0, 10_000.0) as usize;
-    for i in 0..=n {
-        let t = i as f64 / n as f64;
-        let (x, y) = ((a.0 + t * (b.0 - a.0)).round(), (a.1 + t * (b.1 - a.1)).round());
-        if x >= 0.0 && y >= 0.0 && (x as usize) < image.width() && (y as usize) < image.height() {
-            image.set(x as usize, y as usize, colour);
+    Panel { title: "Validation D-MSE on the fixed crops (lower is better)", y_label: "D-MSE (8-bit levels²)", curves }
+}
+
+/// The chart of `panel` on `area`, its legend on `legend`.
+fn draw_panel(area: &Area<'_>, legend: &Area<'_>, panel: &Panel, max_step: f64) -> Result<()> {
+    let err = |e: DrawingAreaErrorKind<_>| anyhow!("drawing {}: {e}", panel.title);
+    let Some(y) = Axis::fitting(panel.curves.iter().flat_map(|c| c.points.iter().map(|p| p.1))) else {
+        let inner = area.titled(panel.title, (FONT, 22)).map_err(err)?;
+        let (w, h) = inner.dim_in_pixel();
+        let style = (FONT, 18).into_font().color(&BLACK);
+        return inner.draw_text("no data yet", &style, (w as i32 / 2 - 50, h as i32 / 2)).map_err(err);
+    };
+    let y_label = y.describe(panel.y_label);
+    let mut chart = ChartBuilder::on(area)
+        .caption(panel.title, (FONT, 22))
+        .margin(12)
+        .x_label_area_size(48)
+        .y_label_area_size(84)
+        .build_cartesian_2d(Axis::linear(0.0..max_step), y.clone())
+        .map_err(err)?;
+    chart
+        .configure_mesh()
+        .x_desc("training step")
+        .y_desc(y_label)
+        .y_labels(10)
+        .x_label_formatter(&|x| format!("{x:.0}"))
+        .y_label_formatter(&|v| tick_label(*v))
+        .label_style((FONT, 15))
+        .axis_desc_style((FONT, 17))
+        .max_light_lines(4)
+        .light_line_style(RGBColor(238, 238, 238))
+        .draw()
+        .map_err(err)?;
+    for curve in &panel.curves {
+        let colour = curve.colour;
+        // A log axis has no place for 0: a term that fades out ends where it reaches 0.
+        let points: Vec<(f64, f64)> = curve.points.iter().filter(|p| y.shows(p.1)).copied().collect();
+        chart.draw_series(LineSeries::new(points.clone(), colour.stroke_width(2))).map_err(err)?;
+        if curve.markers {
+            chart.draw_series(points.iter().map(|&p| Circle::new(p, 4, colour.filled()))).map_err(err)?;
+        }
+    }
+    let entries: Vec<LegendEntry> = panel
+        .curves
+        .iter()
+        .map(|c| LegendEntry {
+            label: c.label.clone(),
+            colour: c.colour,
+            mark: Mark::Line { dashed: false, marker: c.markers },
+        })
+        .collect();
+    draw_legend(legend, None, &entries).map_err(err)?;
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::metrics_csv::LossValues;
+    use crate::validation::ValidationScores;
+
+    #[test]
+    fn writes_a_png_with_and_without_validations() {
+        let dir = tempfile::tempdir().unwrap();
+        let fill = ValidationScores { d_mse: 350.0, d_ssim: 0.79 };
+        let row = |step: u64, total: f32, validation: Option<f64>| MetricsRow {
+            step,
+            loss: LossValues { mse: total / 5.0, ssim: total * 0.8, smooth: 0.0, guide: 0.0, total },
+            validation: validation.map(|d_mse| ValidationScores { d_mse, d_ssim: 0.8 }),
+            fill,
+            elapsed: std::time::Duration::from_secs(step),
+        };
+        let rows = [row(25, 0.5, None), row(50, 0.2, Some(420.0)), row(75, 0.01, Some(300.0))];
+        for (name, rows) in [("loss.png", &rows[..]), ("empty.png", &[][..])] {
+            write_loss_curve(&dir.path().join(name), rows).unwrap();
+            let image = ivp_data::read_rgb(dir.path().join(name)).unwrap();
+            assert_eq!((image.width(), image.height()), (WIDTH as usize, 2 * PANEL_HEIGHT as usize));
         }
     }
 }
