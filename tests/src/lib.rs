@@ -2,6 +2,8 @@
 
 use std::path::PathBuf;
 
+pub mod fuzz;
+
 /// `data/blender-dev`: real Blender renders kept in the repository (data/README.md).
 pub fn blender_dev() -> PathBuf {
     let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../data/blender-dev");
