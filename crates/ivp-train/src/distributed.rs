@@ -43,9 +43,20 @@ pub trait ProcessGroup {
     /// Rank 0's `bytes` on every rank (of one length on every rank).
     fn broadcast(&self, bytes: &mut [u8]);
     /// Time spent in the operations above so far, waiting for the other ranks included.
-    fn time_in_collectives(&self) -> Duration {
-        Duration::ZERO
+    fn time_spent(&self) -> TimeSpent {
+        TimeSpent::default()
     }
+}
+
+/// Where a rank's time in exchanges went.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct TimeSpent {
+    /// In [`ProcessGroup::send_receive`]: the gradient all-reduce, waiting for a rank that is
+    /// still in its backward pass included.
+    pub all_reduce: Duration,
+    /// In the other operations: small sums, flags, validation scores, the state at the start,
+    /// waiting for slower ranks included (a step's first exchange absorbs its data's delays).
+    pub other: Duration,
 }
 
 /// A job of one process: nothing to exchange.

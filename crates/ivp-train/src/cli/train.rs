@@ -137,12 +137,13 @@ fn run_train_on(group: &dyn ProcessGroup, args: TrainArgs, progress: bool) -> Re
     let summary = train_on(group, &config, &args.out, &options)?;
     let minutes = summary.elapsed.as_secs_f64() / 60.0;
     if group.size() > 1 {
-        let busy = group.time_in_collectives().as_secs_f64();
+        let spent = group.time_spent();
         println!(
-            "{} ranks: rank 0 spent {busy:.2} s in collective operations (waiting for the others included), \
-             {:.1} ms a step",
+            "{} ranks, on rank 0: {:.1} ms a step in the gradient all-reduce, {:.1} s in all in the other exchanges \
+             (both waiting for slower ranks included)",
             group.size(),
-            1e3 * busy / summary.steps_run.max(1) as f64
+            1e3 * spent.all_reduce.as_secs_f64() / summary.steps_run.max(1) as f64,
+            spent.other.as_secs_f64()
         );
     }
     if let (Some(v), Some(f)) = (summary.last_validation, summary.fill) {

@@ -9,7 +9,7 @@ use ::mpi::topology::SimpleCommunicator;
 use ::mpi::traits::{Communicator, CommunicatorCollectives, Root};
 use ::mpi::Threading;
 
-use super::{DistributedError, ProcessGroup};
+use super::{DistributedError, ProcessGroup, TimeSpent};
 
 /// Variables that MPI launchers set in the processes they start: Open MPI's `mpirun`, MPICH's and
 /// Intel MPI's Hydra (`mpiexec`), Slurm's `srun` with PMI-2 or PMIx.
@@ -20,7 +20,7 @@ pub struct MpiGroup {
     world: SimpleCommunicator,
     /// Finalises MPI when dropped, after `world` (fields drop in order).
     _universe: Universe,
-    busy: Cell<Duration>,
+    spent: Cell<TimeSpent>,
 }
 
 impl MpiGroup {
@@ -28,6 +28,15 @@ impl MpiGroup {
     /// that a plain `ivp train` stays a single process and never initialises MPI.
     pub fn join() -> Result<Option<Self>, DistributedError> {
         if !LAUNCHER_VARIABLES.iter().any(|v| std::env::var_os(v).is_some()) {
+            // srun without an MPI plugin starts every task as a job of its own: each would train
+            // the whole run into the same folder.
+            let tasks = std::env::var("SLURM_STEP_NUM_TASKS").ok().and_then(|n| n.parse::<usize>().ok());
+            if let Some(n @ 2..) = tasks {
+                return Err(DistributedError::Mpi(format!(
+                    "srun started {n} tasks without MPI's process management: run `srun --mpi=pmix` (or pmi2), or \
+                     mpirun inside the allocation"
+                )));
+            }
             return Ok(None);
         }
         // Only the main thread calls MPI; the sample workers and rayon's threads never do.
@@ -37,7 +46,7 @@ impl MpiGroup {
             tracing::warn!(?threading, "the MPI library does not promise MPI_THREAD_FUNNELED");
         }
         let world = universe.world();
-        Ok(Some(Self { world, _universe: universe, busy: Cell::new(Duration::ZERO) }))
+        Ok(Some(Self { world, _universe: universe, spent: Cell::default() }))
     }
 
     /// Sets rayon's global pool to this machine's cores shared among its ranks, unless the pool
@@ -58,10 +67,12 @@ impl MpiGroup {
         self.world.abort(code)
     }
 
-    fn timed<T>(&self, operation: impl FnOnce() -> T) -> T {
+    fn timed<T>(&self, slot: fn(&mut TimeSpent) -> &mut Duration, operation: impl FnOnce() -> T) -> T {
         let start = Instant::now();
         let result = operation();
-        self.busy.set(self.busy.get() + start.elapsed());
+        let mut spent = self.spent.get();
+        *slot(&mut spent) += start.elapsed();
+        self.spent.set(spent);
         result
     }
 }
@@ -77,20 +88,20 @@ impl ProcessGroup for MpiGroup {
 
     fn send_receive(&self, send: &[f32], to: usize, receive: &mut [f32], from: usize) {
         let (to, from) = (self.world.process_at_rank(to as i32), self.world.process_at_rank(from as i32));
-        self.timed(|| send_receive_into(send, &to, receive, &from));
+        self.timed(|t| &mut t.all_reduce, || send_receive_into(send, &to, receive, &from));
     }
 
     fn all_gather(&self, values: &[f64]) -> Vec<f64> {
         let mut all = vec![0.0; values.len() * self.size()];
-        self.timed(|| self.world.all_gather_into(values, &mut all[..]));
+        self.timed(|t| &mut t.other, || self.world.all_gather_into(values, &mut all[..]));
         all
     }
 
     fn broadcast(&self, bytes: &mut [u8]) {
-        self.timed(|| self.world.process_at_rank(0).broadcast_into(bytes));
+        self.timed(|t| &mut t.other, || self.world.process_at_rank(0).broadcast_into(bytes));
     }
 
-    fn time_in_collectives(&self) -> Duration {
-        self.busy.get()
+    fn time_spent(&self) -> TimeSpent {
+        self.spent.get()
     }
 }
