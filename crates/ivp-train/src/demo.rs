@@ -52,7 +52,7 @@ pub fn plan_training(run_dir: &Path, config: &TrainConfig) -> Result<DemoTrainin
 }
 
 /// The clips to score on: `requested`, else the real clips when they are there (in the working
-/// folder, see [`BLENDER_DEV_CLIPS`]), else clips generated once into the run folder.
+/// folder: `data/blender-dev`), else clips generated once into the run folder.
 pub fn evaluation_data(requested: Option<PathBuf>, run_dir: &Path) -> Result<PathBuf> {
     if let Some(dir) = requested {
         return Ok(dir);

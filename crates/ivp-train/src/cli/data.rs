@@ -28,8 +28,8 @@ pub struct WarpArgs {
     /// A dataset folder (clips at any depth); use with --export-targets.
     #[arg(long, requires = "export_targets")]
     data: Option<PathBuf>,
-    /// Write OUT/<clip name>/<t:04>.png and <t:04>_holes.png for every evaluation target t
-    /// (frame t-1 warped to t), so another tool can infill the very same disocclusions.
+    /// Write OUT/CLIP/TTTT.png and OUT/CLIP/TTTT_holes.png for every evaluation target TTTT
+    /// (the frame before it warped to it), so another tool can infill the very same disocclusions.
     #[arg(long, requires = "data")]
     export_targets: bool,
     /// Targets to export (with --export-targets).

@@ -31,7 +31,7 @@ pub struct EvalArgs {
     /// Iterations of the models' test-time infilling (ALGORITHMS.md §6.5).
     #[arg(long, default_value_t = ivp_core::infill::DEFAULT_ITERATIONS)]
     iterations: usize,
-    /// Score frames predicted by another tool: NAME=DIR, read from DIR/<clip name>/<t:04>.png.
+    /// Score frames predicted by another tool: NAME=DIR, read from DIR/CLIP/TTTT.png (target TTTT of clip CLIP).
     #[arg(long, value_name = "NAME=DIR")]
     external: Vec<String>,
     #[command(flatten)]
