@@ -21,33 +21,30 @@ fn corpus(target: &str) -> Vec<(PathBuf, Vec<u8>)> {
     inputs
 }
 
+/// Runs every input of `target`'s corpus: none may panic, and the corpus must hold both inputs
+/// that are accepted (intact files) and inputs that are refused (damaged ones).
+fn replay(target: &str, run: impl Fn(&[u8]) -> Result<(), String>) {
+    let (mut accepted, mut refused) = (0, 0);
+    for (path, input) in corpus(target) {
+        match std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| run(&input))) {
+            Ok(Ok(())) => accepted += 1,
+            Ok(Err(_)) => refused += 1,
+            Err(_) => panic!("{}: the {target} harness panicked", path.display()),
+        }
+    }
+    assert!(accepted > 0 && refused > 0, "{target}: accepted {accepted}, refused {refused}");
+}
+
 #[test]
 fn clip_corpus_gives_clear_verdicts() {
     let harness = ClipHarness::new();
-    let (mut accepted, mut refused) = (0, 0);
-    for (path, input) in corpus("clip") {
-        match std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| harness.run(&input))) {
-            Ok(Ok(())) => accepted += 1,
-            Ok(Err(_)) => refused += 1,
-            Err(_) => panic!("{}: the clip harness panicked", path.display()),
-        }
-    }
-    // The corpus holds the intact base files (accepted) and damaged ones (refused).
-    assert!(accepted > 0 && refused > 0, "accepted {accepted}, refused {refused}");
+    replay("clip", |input| harness.run(input));
 }
 
 #[test]
 fn model_corpus_gives_clear_verdicts() {
     let harness = ModelHarness::new();
-    let (mut accepted, mut refused) = (0, 0);
-    for (path, input) in corpus("model") {
-        match std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| harness.run(&input))) {
-            Ok(Ok(())) => accepted += 1,
-            Ok(Err(_)) => refused += 1,
-            Err(_) => panic!("{}: the model harness panicked", path.display()),
-        }
-    }
-    assert!(accepted > 0 && refused > 0, "accepted {accepted}, refused {refused}");
+    replay("model", |input| harness.run(input));
 }
 
 #[test]
