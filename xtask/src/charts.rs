@@ -9,7 +9,7 @@ use anyhow::{anyhow, Context, Result};
 use ivp_plot::plotters::coord::Shift;
 use ivp_plot::plotters::prelude::*;
 use ivp_plot::plotters::style::text_anchor::{HPos, Pos, VPos};
-use ivp_plot::{colour, draw_legend, register_font, tick_label, Axis, LegendEntry, Mark, FONT};
+use ivp_plot::{colour, draw_legend, house_style, register_font, tick_label, Axis, LegendEntry, Mark, FONT};
 
 /// Widths of the legend columns: the bar chart's names are short, the speed chart's are not.
 const BAR_LEGEND_WIDTH: u32 = 200;
@@ -91,16 +91,13 @@ fn draw_bars(area: &Area<'_>, chart: &BarChart) -> Result<()> {
         .y_label_area_size(78)
         .build_cartesian_2d(Axis::linear(-0.5..groups as f64 - 0.5), Axis::linear(0.0..(top * 1.15).max(1e-9)))
         .map_err(&err)?;
-    plot.configure_mesh()
+    house_style(&mut plot.configure_mesh())
         .disable_x_mesh()
         .x_desc("dataset")
         .y_desc(chart.y_label.as_str())
         .x_labels(groups)
         .x_label_formatter(&group_name)
         .y_label_formatter(&|y| tick_label(*y))
-        .label_style((FONT, 15))
-        .axis_desc_style((FONT, 16))
-        .light_line_style(RGBColor(235, 235, 235))
         .draw()
         .map_err(&err)?;
     let slot = 0.84 / chart.series.len().max(1) as f64;
@@ -220,18 +217,13 @@ fn draw_timed_panel(area: &Area<'_>, panel: &TimedPanel, x_label: &str, y_label:
         .y_label_area_size(78)
         .build_cartesian_2d(x.clone(), y.clone())
         .map_err(&err)?;
-    chart
-        .configure_mesh()
+    house_style(&mut chart.configure_mesh())
         .x_desc(x_label)
         .y_desc(y_label)
         .x_labels(12)
         .y_labels(10)
         .x_label_formatter(&|v| tick_label(*v))
         .y_label_formatter(&|v| tick_label(*v))
-        .label_style((FONT, 15))
-        .axis_desc_style((FONT, 16))
-        .max_light_lines(4)
-        .light_line_style(RGBColor(238, 238, 238))
         .draw()
         .map_err(&err)?;
     let drawable = |p: &&TimedPoint| x.shows(p.ms) && y.shows(p.error);

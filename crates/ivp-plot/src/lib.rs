@@ -7,6 +7,7 @@ use std::ops::Range;
 use std::sync::Once;
 
 pub use plotters;
+use plotters::chart::MeshStyle;
 use plotters::coord::ranged1d::{DefaultFormatting, KeyPointHint, Ranged};
 use plotters::coord::types::RangedCoordf64;
 use plotters::coord::Shift;
@@ -23,6 +24,22 @@ pub fn register_font() {
         // A constant of the dejavu crate: it parses, or the build itself is broken.
         let _ = plotters::style::register_font(FONT, FontStyle::Normal, dejavu::sans::regular());
     });
+}
+
+/// The grid and text of every chart's axes: tick labels at 15 px, axis descriptions at 16 px, and
+/// up to 4 light grid lines between labelled ticks.
+pub fn house_style<'m, 'a, 'b, X, Y, DB>(
+    mesh: &'m mut MeshStyle<'a, 'b, X, Y, DB>,
+) -> &'m mut MeshStyle<'a, 'b, X, Y, DB>
+where
+    X: Ranged,
+    Y: Ranged,
+    DB: DrawingBackend,
+{
+    mesh.label_style((FONT, 15))
+        .axis_desc_style((FONT, 16))
+        .max_light_lines(4)
+        .light_line_style(RGBColor(238, 238, 238))
 }
 
 /// Distinct colours (Tableau 10), taken in order.

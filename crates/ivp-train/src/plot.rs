@@ -8,7 +8,7 @@ use anyhow::{anyhow, Result};
 use ivp_core::RgbImage;
 use ivp_plot::plotters::coord::Shift;
 use ivp_plot::plotters::prelude::*;
-use ivp_plot::{draw_legend, register_font, tick_label, Axis, LegendEntry, Mark, FONT};
+use ivp_plot::{draw_legend, house_style, register_font, tick_label, Axis, LegendEntry, Mark, FONT};
 
 use crate::metrics_csv::MetricsRow;
 
@@ -116,17 +116,12 @@ fn draw_panel(area: &Area<'_>, legend: &Area<'_>, panel: &Panel, max_step: f64) 
         .y_label_area_size(84)
         .build_cartesian_2d(Axis::linear(0.0..max_step), y.clone())
         .map_err(err)?;
-    chart
-        .configure_mesh()
+    house_style(&mut chart.configure_mesh())
         .x_desc("training step")
         .y_desc(y_label)
         .y_labels(10)
         .x_label_formatter(&|x| format!("{x:.0}"))
         .y_label_formatter(&|v| tick_label(*v))
-        .label_style((FONT, 15))
-        .axis_desc_style((FONT, 17))
-        .max_light_lines(4)
-        .light_line_style(RGBColor(238, 238, 238))
         .draw()
         .map_err(err)?;
     for curve in &panel.curves {
