@@ -2,8 +2,9 @@
 //! identical data, scored on the Blender clips and on a generated held-out split, and summarised
 //! as mean and standard deviation over the seeds.
 //!
-//! Rows: `intensity` (the U-Net predicts colours), `no-tg` (zeros for the temporal prior, and no
-//! guide term: it pulls towards the prior, see `training_step`), `no-depth`, `no-iter` (the full
+//! Rows: `intensity` (the U-Net predicts colours), `no-tg` (zeros for the temporal prior; its
+//! guide term pulls towards the depth-aware `fill` vectors instead of the prior, see
+//! `GuideSource` in ivp-train), `no-depth`, `no-iter` (the full
 //! model at P = 1) and `full` (P = 3). `no-iter` and `full` are the same trained models. Runs that
 //! finished are reused and stopped ones resumed, so a sweep can span several sittings.
 
