@@ -5,7 +5,7 @@
 use std::time::Duration;
 
 use ivp_core::geometry::FrameView;
-use ivp_core::inference::{Coverage, ModelInfiller, ModelPrediction, TileShape};
+use ivp_core::inference::{Coverage, ModelInfiller, ModelPrediction, Scale, TileShape};
 use ivp_core::infill::InfillContext;
 use ivp_core::metrics::score_frame;
 use ivp_core::nn::model::{IvpNet, ModelConfig, Variant};
@@ -19,9 +19,9 @@ use ivp_data::{render_clip, SceneParams, SyntheticClip};
 const AGREEING_SHARE: f64 = 0.99;
 const VECTOR_TOLERANCE: f32 = 0.5;
 
-fn predict(clip: &SyntheticClip, warp: &Warp, coverage: Coverage) -> ModelPrediction {
+fn predict(clip: &SyntheticClip, warp: &Warp, coverage: Coverage, scale: Scale) -> ModelPrediction {
     let (net, _) = IvpNet::seeded(ModelConfig { variant: Variant::Full, width_mult: 0.125 }, 11).unwrap();
-    let model = ModelInfiller::new("ivp", net.detached(), 3).with_coverage(coverage);
+    let model = ModelInfiller::new("ivp", net.detached(), 3).with_coverage(coverage).with_scale(scale);
     let view =
         |i: usize| FrameView { image: &clip.frames[i].image, depth: &clip.frames[i].depth, pose: &clip.poses[i] };
     let ctx = InfillContext {
@@ -45,21 +45,25 @@ fn sparse_and_dense_agree_on_a_full_hd_frame() {
     let holes = disocclusions.iter().filter(|&&d| d).count();
     assert!(holes > 500, "the generated frame has only {holes} disocclusion pixels");
 
-    let dense = predict(&clip, &warp, Coverage::Dense);
-    let sparse = predict(&clip, &warp, Coverage::Sparse(TileShape::DEFAULT));
-    assert!(sparse.tiles > 0 && dense.tiles == 0);
-    let (dv, sv) = (dense.vectors.as_ref().unwrap(), sparse.vectors.as_ref().unwrap());
-    let agreeing = (dv.pixels().iter().zip(sv.pixels()))
-        .zip(&disocclusions)
-        .filter(|((a, b), &d)| d && (a[0] - b[0]).abs().max((a[1] - b[1]).abs()) <= VECTOR_TOLERANCE)
-        .count();
-    let share = agreeing as f64 / holes as f64;
-    assert!(share >= AGREEING_SHARE, "only {:.2}% of the sparse vectors agree with dense", 100.0 * share);
+    // At full size, and shrunk as the default does (the network runs at 640x360).
+    for scale in [Scale::Factor(1), Scale::Auto] {
+        let dense = predict(&clip, &warp, Coverage::Dense, scale);
+        let sparse = predict(&clip, &warp, Coverage::Sparse(TileShape::DEFAULT), scale);
+        assert!(sparse.tiles > 0 && dense.tiles == 0);
+        let (dv, sv) = (dense.vectors.as_ref().unwrap(), sparse.vectors.as_ref().unwrap());
+        let agreeing = (dv.pixels().iter().zip(sv.pixels()))
+            .zip(&disocclusions)
+            .filter(|((a, b), &d)| d && (a[0] - b[0]).abs().max((a[1] - b[1]).abs()) <= VECTOR_TOLERANCE)
+            .count();
+        let share = agreeing as f64 / holes as f64;
+        assert!(share >= AGREEING_SHARE, "{scale}: only {:.2}% of the sparse vectors agree with dense", 100.0 * share);
 
-    let truth = &clip.frames[3].image;
-    let d_mse = |p: &ModelPrediction| score_frame(&p.image.quantized_to_8bit(), truth, &disocclusions).d_mse.unwrap();
-    let (d, s) = (d_mse(&dense), d_mse(&sparse));
-    assert!((s - d).abs() <= 0.01 * d, "D-MSE sparse {s:.2} against dense {d:.2}");
+        let truth = &clip.frames[3].image;
+        let d_mse =
+            |p: &ModelPrediction| score_frame(&p.image.quantized_to_8bit(), truth, &disocclusions).d_mse.unwrap();
+        let (d, s) = (d_mse(&dense), d_mse(&sparse));
+        assert!((s - d).abs() <= 0.01 * d, "{scale}: D-MSE sparse {s:.2} against dense {d:.2}");
+    }
 }
 
 #[test]
@@ -72,7 +76,7 @@ fn a_frame_without_disocclusions_runs_no_network_pass() {
     let mut still = clip;
     still.poses[3] = still.poses[2];
     for coverage in [Coverage::Sparse(TileShape::DEFAULT), Coverage::Dense] {
-        let out = predict(&still, &warp, coverage);
+        let out = predict(&still, &warp, coverage, Scale::Auto);
         let network = out.stages.iter().find(|(name, _)| *name == "network").unwrap().1;
         assert_eq!((out.tiles, network), (0, Duration::ZERO), "{coverage:?}");
     }

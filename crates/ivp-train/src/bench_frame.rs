@@ -8,7 +8,7 @@ use std::time::{Duration, Instant};
 
 use anyhow::{ensure, Context, Result};
 use ivp_core::geometry::FrameView;
-use ivp_core::inference::{Coverage, ModelInfiller};
+use ivp_core::inference::{Coverage, ModelInfiller, Scale};
 use ivp_core::infill::{classical_infiller, InfillContext};
 use ivp_core::metrics::score_frame;
 use ivp_core::nn::model::{IvpNet, ModelConfig, Variant};
@@ -28,6 +28,8 @@ pub struct FrameCase {
     pub width_mult: f64,
     pub iterations: usize,
     pub coverage: Coverage,
+    /// The scale the model runs at.
+    pub scale: Scale,
     /// Timed runs, after one untimed warm-up run.
     pub runs: usize,
     /// Seed of the generated scene (and of the untrained weights).
@@ -55,6 +57,8 @@ pub struct FrameReport {
     pub tile_core: Option<usize>,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub tile_margin: Option<usize>,
+    /// The factor the frame was shrunk by before the network saw it.
+    pub scale: usize,
     pub runs: usize,
     pub threads: usize,
     /// Disocclusions as a fraction of the frame.
@@ -83,7 +87,7 @@ pub fn bench_frame(case: &FrameCase) -> Result<FrameReport> {
     };
     ensure!(net.config().variant.predicts_vectors(), "ivp bench frame times the vector variants only");
     let width_mult = net.config().width_mult;
-    let model = ModelInfiller::new("ivp", net, case.iterations).with_coverage(case.coverage);
+    let model = ModelInfiller::new("ivp", net, case.iterations).with_coverage(case.coverage).with_scale(case.scale);
     let params = SceneParams { width: case.width, height: case.height, frames: FRAMES, ..Default::default() };
     let clip = render_clip(case.seed, &params);
     let view =
@@ -142,6 +146,7 @@ pub fn bench_frame(case: &FrameCase) -> Result<FrameReport> {
         coverage: if tile_core.is_some() { "sparse" } else { "dense" },
         tile_core,
         tile_margin,
+        scale: case.scale.factor(case.height),
         runs: case.runs,
         threads: rayon::current_num_threads(),
         hole_fraction,

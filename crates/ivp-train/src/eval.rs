@@ -8,7 +8,7 @@ use std::time::{Duration, Instant};
 use anyhow::{bail, ensure, Context, Result};
 use indicatif::ProgressBar;
 use ivp_core::geometry::FrameView;
-use ivp_core::inference::{Coverage, ModelInfiller};
+use ivp_core::inference::{Coverage, ModelInfiller, Scale};
 use ivp_core::infill::{classical_infiller, InfillContext, Infiller, CLASSICAL_METHODS};
 use ivp_core::metrics::{score_frame, tc_track_variances, FrameScores, TcSequence};
 use ivp_core::{relative_pose, warp_forward, RgbImage, Warp};
@@ -50,12 +50,14 @@ pub struct MethodSpecs<'a> {
     pub externals: &'a [String],
     /// How the models cover a frame (sparse tiles, or dense).
     pub coverage: Coverage,
+    /// The scale the models run at.
+    pub scale: Scale,
 }
 
 /// The methods `specs` names: those of `names` in their order, then the models `names` leaves
 /// out, then the external methods. Two methods of the same name would make the table ambiguous.
 pub fn build_methods(specs: &MethodSpecs<'_>) -> Result<Vec<Method>> {
-    let mut models = load_models(specs.models, specs.iterations, specs.coverage)?;
+    let mut models = load_models(specs.models, specs.iterations, specs.coverage, specs.scale)?;
     let mut methods = Vec::new();
     for name in specs.names.iter().map(|m| m.trim()).filter(|m| !m.is_empty()) {
         methods.push(named_method(name, &mut models)?);
@@ -68,7 +70,7 @@ pub fn build_methods(specs: &MethodSpecs<'_>) -> Result<Vec<Method>> {
     Ok(methods)
 }
 
-fn load_models(specs: &[String], iterations: usize, coverage: Coverage) -> Result<Vec<ModelInfiller>> {
+fn load_models(specs: &[String], iterations: usize, coverage: Coverage, scale: Scale) -> Result<Vec<ModelInfiller>> {
     specs
         .iter()
         .map(|spec| {
@@ -78,7 +80,7 @@ fn load_models(specs: &[String], iterations: usize, coverage: Coverage) -> Resul
             };
             ensure!(iterations > 0, "--iterations must be at least 1");
             let (net, _) = load_model(&file)?;
-            Ok(ModelInfiller::new(name, net, iterations).with_coverage(coverage))
+            Ok(ModelInfiller::new(name, net, iterations).with_coverage(coverage).with_scale(scale))
         })
         .collect()
 }
@@ -465,6 +467,7 @@ mod tests {
             iterations: 1,
             externals,
             coverage: Coverage::Dense,
+            scale: Scale::Factor(1),
         })
     }
 

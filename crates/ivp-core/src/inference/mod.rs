@@ -4,8 +4,10 @@
 //!
 //! Layer: the top of the crate; the one place where `nn` meets `infill` and `prior`.
 
+pub mod scaled;
 pub mod tiles;
 
+pub use scaled::{Scale, ScaledPredictor};
 pub use tiles::{plan_tiles, Tile, TileShape, TiledPredictor};
 
 use std::time::{Duration, Instant};
@@ -93,7 +95,7 @@ impl Default for Coverage {
 /// The frame predicted by `net` in dense passes: iterative infilling with `iterations` for the
 /// vector variants, one pass for the intensity variant; new regions by the common rule.
 pub fn infill_frame(net: &IvpNet, inputs: &FrameInputs<'_>, iterations: usize) -> Result<RgbImage, InfillError> {
-    Ok(predict_frame(net, inputs, iterations, Coverage::Dense)?.image)
+    Ok(predict_frame(net, inputs, iterations, Coverage::Dense, 1)?.image)
 }
 
 /// What [`predict_frame`] gives besides the image.
@@ -105,20 +107,26 @@ struct FramePrediction {
     tiles: usize,
 }
 
-/// [`infill_frame`] with any coverage, the vectors used, the time inside the network and the tiles run.
+/// [`infill_frame`] with any coverage and scale factor (vector variants only), the vectors used,
+/// the time inside the network and the tiles run.
 fn predict_frame(
     net: &IvpNet,
     inputs: &FrameInputs<'_>,
     iterations: usize,
     coverage: Coverage,
+    factor: usize,
 ) -> Result<FramePrediction, InfillError> {
     let (warped, depth, holes, prior) = (inputs.warped, inputs.warped_depth, inputs.holes, inputs.prior);
     if net.config().variant.predicts_vectors() {
         let (out, tiles) = match coverage {
-            Coverage::Dense => (infill_iteratively(net, warped, depth, holes, prior, iterations)?, 0),
+            Coverage::Dense => {
+                let scaled = ScaledPredictor::new(net, factor);
+                (infill_iteratively(&scaled, warped, depth, holes, prior, iterations)?, 0)
+            }
             Coverage::Sparse(shape) => {
-                let tiled = TiledPredictor::new(net, shape);
-                (infill_iteratively(&tiled, warped, depth, holes, prior, iterations)?, tiled.tiles_run())
+                let scaled = ScaledPredictor::new(TiledPredictor::new(net, shape), factor);
+                let out = infill_iteratively(&scaled, warped, depth, holes, prior, iterations)?;
+                (out, scaled.inner().tiles_run())
             }
         };
         return Ok(FramePrediction {
@@ -167,12 +175,23 @@ pub struct ModelInfiller {
     net: IvpNet,
     iterations: usize,
     coverage: Coverage,
+    scale: Scale,
 }
 
 impl ModelInfiller {
-    /// `iterations` is P of ALGORITHMS.md §6.5 (ignored by the intensity variant). Sparse by default.
+    /// `iterations` is P of ALGORITHMS.md §6.5 (ignored by the intensity variant). Sparse and at
+    /// the automatic scale by default.
     pub fn new(name: impl Into<String>, net: IvpNet, iterations: usize) -> Self {
-        Self { name: name.into(), net, iterations, coverage: Coverage::default() }
+        Self { name: name.into(), net, iterations, coverage: Coverage::default(), scale: Scale::default() }
+    }
+
+    /// The same model run at `scale` (vector variants; the intensity variant runs at full size).
+    pub fn with_scale(self, scale: Scale) -> Self {
+        Self { scale, ..self }
+    }
+
+    pub fn scale(&self) -> Scale {
+        self.scale
     }
 
     /// The same model covering frames as `coverage` says (the intensity variant is always dense).
@@ -213,7 +232,8 @@ impl ModelInfiller {
             last_warped: last_warped.as_ref(),
         };
         let started = Instant::now();
-        let out = predict_frame(&self.net, &inputs, self.iterations, self.coverage)?;
+        let factor = self.scale.factor(h);
+        let out = predict_frame(&self.net, &inputs, self.iterations, self.coverage, factor)?;
         let infill_time = started.elapsed().saturating_sub(out.network_time);
         Ok(ModelPrediction {
             image: out.image,

@@ -92,8 +92,17 @@ pub fn run_bench(command: BenchCommand) -> Result<()> {
         BenchCommand::Frame { height, width, model, width_mult, iterations, runs, seed, coverage } => {
             ensure_width_mult(width_mult)?;
             ensure!(height >= 16 && width >= 16, "--height and --width must be at least 16");
-            let case =
-                FrameCase { height, width, model, width_mult, iterations, coverage: coverage.coverage()?, runs, seed };
+            let case = FrameCase {
+                height,
+                width,
+                model,
+                width_mult,
+                iterations,
+                coverage: coverage.coverage()?,
+                scale: coverage.scale,
+                runs,
+                seed,
+            };
             let report = bench_frame(&case)?;
             println!("{}", serde_json::to_string(&report)?);
             return Ok(());

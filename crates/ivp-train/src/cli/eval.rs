@@ -45,6 +45,7 @@ pub fn run_eval(args: EvalArgs, progress: bool) -> Result<()> {
         iterations: args.iterations,
         externals: &args.external,
         coverage: args.coverage.coverage()?,
+        scale: args.coverage.scale,
     })?;
     let report = evaluate(&args.data, &args.targets, &methods, progress)?;
     print!("{}", format_table(&report));

@@ -8,7 +8,7 @@ pub mod infer;
 pub mod train;
 
 use clap::{Args, Parser, Subcommand};
-use ivp_core::inference::{Coverage, TileShape};
+use ivp_core::inference::{Coverage, Scale, TileShape};
 
 #[derive(Parser)]
 #[command(
@@ -72,6 +72,10 @@ pub struct CoverageArgs {
     /// Context read around each cell, in pixels (a multiple of 16).
     #[arg(long, default_value_t = TileShape::DEFAULT.margin)]
     pub tile_margin: usize,
+    /// Shrink frames by this integer factor before the network sees them; `auto` shrinks frames
+    /// taller than 240 rows (the height the recipe trains at) towards that height.
+    #[arg(long, default_value_t = Scale::Auto)]
+    pub scale: Scale,
 }
 
 impl CoverageArgs {
