@@ -21,6 +21,9 @@ use crate::run;
 /// The variants trained, in the order of the table.
 const TRAINED: [&str; 4] = ["intensity", "no-tg", "no-depth", "full"];
 
+/// The order they are trained in.
+const TRAINING_ORDER: [&str; 4] = ["full", "no-depth", "no-tg", "intensity"];
+
 /// A row of the table: the trained variant it uses and the iterations of its test-time infilling.
 const ROWS: [(&str, &str, usize); 5] = [
     ("intensity", "intensity", 3),
@@ -68,14 +71,18 @@ pub fn ablate(ivp: &Path, sweep: &Sweep) -> Result<()> {
         eprintln!("warning: {} is missing; scoring on the generated split only", sweep.blender.display());
     }
 
+    let run_dir = |variant: &str, seed: u64| sweep.out.join(variant).join(format!("seed{seed}"));
+    // Everything is trained before anything is scored, the full model's seeds first: they are
+    // also the recipe's spread over seeds (results/resolution), and a sweep stopped part-way
+    // leaves whole variants rather than whole seeds.
+    for variant in TRAINING_ORDER {
+        for &seed in &sweep.seeds {
+            train(ivp, sweep, variant, seed, &run_dir(variant, seed))?;
+        }
+    }
     let mut scores = Vec::new();
     for &seed in &sweep.seeds {
-        let mut models = BTreeMap::new();
-        for variant in TRAINED {
-            let dir = sweep.out.join(variant).join(format!("seed{seed}"));
-            train(ivp, sweep, variant, seed, &dir)?;
-            models.insert(variant, dir);
-        }
+        let models: BTreeMap<&str, PathBuf> = TRAINED.iter().map(|&v| (v, run_dir(v, seed))).collect();
         for (name, data) in &datasets {
             for (iterations, rows) in [(3, &ROWS[..]), (1, &ROWS[3..4])] {
                 let rows: Vec<_> = rows.iter().filter(|r| r.2 == iterations).collect();
