@@ -7,7 +7,7 @@
 pub mod scaled;
 pub mod tiles;
 
-pub use scaled::{Scale, ScaledPredictor};
+pub use scaled::{shrunk_temporal_prior, Scale, ScaledPredictor};
 pub use tiles::{plan_tiles, Tile, TileShape, TiledPredictor};
 
 use std::time::{Duration, Instant};
@@ -213,9 +213,10 @@ impl ModelInfiller {
         let (w, h) = (warped.image.width(), warped.image.height());
         let started = Instant::now();
         let variant = self.net.config().variant;
+        let factor = self.scale.factor(h);
         // The prior is measured on frame n-2; without it (first frames) the model runs without.
         let (prior, last_warped) = match variant {
-            Variant::Full | Variant::NoDepth => (ctx.temporal_prior().map(|p| p.prior), None),
+            Variant::Full | Variant::NoDepth => (shrunk_temporal_prior(ctx, factor), None),
             Variant::Intensity => {
                 (None, ctx.before_last.as_ref().map(|b| warp_to_last(b, &ctx.last, ctx.intrinsics).image))
             }
@@ -232,7 +233,6 @@ impl ModelInfiller {
             last_warped: last_warped.as_ref(),
         };
         let started = Instant::now();
-        let factor = self.scale.factor(h);
         let out = predict_frame(&self.net, &inputs, self.iterations, self.coverage, factor)?;
         let infill_time = started.elapsed().saturating_sub(out.network_time);
         Ok(ModelPrediction {

@@ -1,4 +1,5 @@
-//! The network at a coarser scale than the frame: [`ScaledPredictor`].
+//! The network and the temporal prior at a coarser scale than the frame: [`ScaledPredictor`] and
+//! [`shrunk_temporal_prior`] (ALGORITHMS.md §6.7).
 //!
 //! The same head motion opens holes `k` times wider in a frame `k` times larger, while the
 //! network is trained on frames of about 320x240. Run on a 1080p frame directly, it must point
@@ -9,9 +10,11 @@
 
 use rayon::prelude::*;
 
-use crate::geometry::{DepthMap, VectorField};
+use crate::geometry::image::is_valid_depth;
+use crate::geometry::{DepthMap, FrameView, Image, Intrinsics, RgbImage, VectorField};
 use crate::infill::iterative::VectorPredictor;
-use crate::infill::InfillError;
+use crate::infill::{InfillContext, InfillError};
+use crate::prior::target_prior;
 
 /// The factor by which frames are shrunk before the network sees them.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -148,6 +151,113 @@ impl<P: VectorPredictor> VectorPredictor for ScaledPredictor<P> {
     }
 }
 
+/// The temporal prior of `ctx`'s target (ALGORITHMS.md §6.2) computed on the frames shrunk by
+/// `factor`, as a full-size field: each known pixel takes `factor` times the prior of its block,
+/// holes take 0. `None` without frame `n - 2`.
+///
+/// Why: the prior's warps and searches cost as much as the rest of a 1080p frame together, while
+/// the network that reads it sees the frame shrunk anyway; measured on the shrunk frames, the
+/// prior also looks like the ones the network was trained with (frames of a few hundred rows).
+pub fn shrunk_temporal_prior(ctx: &InfillContext<'_>, factor: usize) -> Option<VectorField> {
+    let before_last = ctx.before_last.as_ref()?;
+    let s = factor.max(1);
+    if s == 1 {
+        return ctx.temporal_prior().map(|p| p.prior);
+    }
+    let shrink = |view: &FrameView<'_>| (shrink_image(view.image, s), shrink_depth(view.depth, s));
+    let ((image_b, depth_b), (image_n, depth_n)) = rayon::join(|| shrink(before_last), || shrink(&ctx.last));
+    let view_b = FrameView { image: &image_b, depth: &depth_b, pose: before_last.pose };
+    let view_n = FrameView { image: &image_n, depth: &depth_n, pose: ctx.last.pose };
+    let holes = &ctx.warped.holes;
+    let (w, h) = (holes.width(), holes.height());
+    let known = holes.known();
+    let (cw, ch) = (w.div_ceil(s), h.div_ceil(s));
+    // A block is known when all its pixels are (as in ScaledPredictor, where any hole makes a hole).
+    let coarse_known: Vec<bool> = (0..cw * ch)
+        .into_par_iter()
+        .map(|c| {
+            let (cu, cv) = (c % cw, c / cw);
+            (cv * s..((cv + 1) * s).min(h)).all(|v| (cu * s..((cu + 1) * s).min(w)).all(|u| known[v * w + u]))
+        })
+        .collect();
+    let k = shrink_intrinsics(ctx.intrinsics, s);
+    let coarse = target_prior(&view_b, &view_n, ctx.target_pose, &k, &coarse_known).prior;
+    let grown = s as f32;
+    let mut prior = VectorField::zeros(w, h);
+    prior.pixels_mut().par_chunks_mut(w.max(1)).enumerate().for_each(|(v, row)| {
+        for (u, out) in row.iter_mut().enumerate() {
+            if known[v * w + u] {
+                let [x, y] = coarse.get(u / s, v / s);
+                *out = [x * grown, y * grown];
+            }
+        }
+    });
+    Some(prior)
+}
+
+/// The intrinsics of a frame shrunk by blocks of `s`: pixel centres at integers, so block `c`
+/// is centred on full-size coordinate `c s + (s - 1) / 2`.
+pub fn shrink_intrinsics(k: &Intrinsics, s: usize) -> Intrinsics {
+    let (s, half) = (s as f64, (s as f64 - 1.0) / 2.0);
+    Intrinsics::new(k.fx / s, k.fy / s, (k.cx - half) / s, (k.cy - half) / s)
+}
+
+/// Each block of `s x s` pixels (partial at the right and bottom) becomes its mean colour.
+pub fn shrink_image(image: &RgbImage, s: usize) -> RgbImage {
+    shrink_blocks(image, s, |pixels| {
+        let mut sum = [0f64; 3];
+        let mut n = 0usize;
+        for p in pixels {
+            for c in 0..3 {
+                sum[c] += p[c] as f64;
+            }
+            n += 1;
+        }
+        sum.map(|x| (x / n as f64) as f32)
+    })
+}
+
+/// Each block of `s x s` depths becomes the mean of its valid depths; a block without any is
+/// `+inf` when it holds sky (`+inf`) and 0 (missing) otherwise.
+pub fn shrink_depth(depth: &DepthMap, s: usize) -> DepthMap {
+    shrink_blocks(depth, s, |pixels| {
+        let (mut sum, mut n, mut sky) = (0f64, 0usize, false);
+        for [z] in pixels {
+            if is_valid_depth(z) {
+                sum += z as f64;
+                n += 1;
+            }
+            sky |= z == f32::INFINITY;
+        }
+        [if n > 0 {
+            (sum / n as f64) as f32
+        } else if sky {
+            f32::INFINITY
+        } else {
+            0.0
+        }]
+    })
+}
+
+/// `image` shrunk by blocks of `s x s`, each block reduced by `reduce` over its pixels.
+fn shrink_blocks<const C: usize>(
+    image: &Image<C>,
+    s: usize,
+    reduce: impl Fn(&mut dyn Iterator<Item = [f32; C]>) -> [f32; C] + Sync,
+) -> Image<C> {
+    let (w, h) = (image.width(), image.height());
+    let (cw, ch) = (w.div_ceil(s), h.div_ceil(s));
+    let mut out = Image::zeros(cw, ch);
+    out.pixels_mut().par_chunks_mut(cw.max(1)).enumerate().for_each(|(cv, row)| {
+        for (cu, cell) in row.iter_mut().enumerate() {
+            let rows = cv * s..((cv + 1) * s).min(h);
+            let mut pixels = rows.flat_map(|v| image.row(v)[cu * s..((cu + 1) * s).min(w)].iter().copied());
+            *cell = reduce(&mut pixels);
+        }
+    });
+    out
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -219,5 +329,72 @@ mod tests {
         let (_, seen_depth, seen_holes) = probe.seen.lock().unwrap().take().unwrap();
         assert_eq!((seen_depth, seen_holes), (depth, holes));
         assert_eq!(vectors.get(1, 1), [1.0, 1.0]);
+    }
+
+    #[test]
+    fn shrunk_intrinsics_project_to_the_block_centres() {
+        let k = Intrinsics::new(2100.0, 2000.0, 960.0, 540.0);
+        for s in [2usize, 3, 4] {
+            let c = shrink_intrinsics(&k, s);
+            for (x, y, z) in [(0.3, -0.2, 4.0), (-1.0, 0.5, 2.5)] {
+                let (u, v) = (k.fx * x / z + k.cx, k.fy * y / z + k.cy);
+                let (cu, cv) = (c.fx * x / z + c.cx, c.fy * y / z + c.cy);
+                // Full-size coordinate of coarse coordinate c: c s + (s - 1) / 2.
+                let half = (s as f64 - 1.0) / 2.0;
+                assert!((cu * s as f64 + half - u).abs() < 1e-9 && (cv * s as f64 + half - v).abs() < 1e-9);
+            }
+        }
+    }
+
+    #[test]
+    fn shrinking_averages_colours_and_valid_depths() {
+        let image = RgbImage::from_fn(3, 2, |u, v| [u as f32, v as f32, 1.0]);
+        let shrunk = shrink_image(&image, 2);
+        assert_eq!((shrunk.width(), shrunk.height()), (2, 1));
+        assert_eq!(shrunk.get(0, 0), [0.5, 0.5, 1.0]);
+        assert_eq!(shrunk.get(1, 0), [2.0, 0.5, 1.0]); // the partial block: one column
+                                                       // Valid depths are averaged; invalid ones are left out; sky stays sky, missing stays 0.
+        let depth = DepthMap::from_pixels(
+            4,
+            2,
+            vec![[2.0], [f32::NAN], [f32::INFINITY], [0.0], [4.0], [-1.0], [0.0], [f32::INFINITY]],
+        );
+        let shrunk = shrink_depth(&depth, 2);
+        assert_eq!(shrunk.get(0, 0), [3.0]);
+        assert_eq!(shrunk.get(1, 0), [f32::INFINITY]);
+        let missing = shrink_depth(&DepthMap::from_pixels(2, 1, vec![[0.0], [f32::NAN]]), 2);
+        assert_eq!(missing.get(0, 0), [0.0]);
+    }
+
+    #[test]
+    fn the_shrunk_prior_is_the_plain_one_at_factor_one_and_zero_on_holes() {
+        use crate::geometry::{relative_pose, warp_forward, FrameView};
+        use crate::test_scene::{intrinsics, render};
+        let k = intrinsics();
+        let frames: Vec<_> = [0.0, 0.2, 0.3].into_iter().map(render).collect();
+        let warped = warp_forward(&frames[1].0, &frames[1].1, &k, &relative_pose(&frames[1].2, &frames[2].2));
+        let view = |i: usize| FrameView { image: &frames[i].0, depth: &frames[i].1, pose: &frames[i].2 };
+        let ctx = InfillContext {
+            intrinsics: &k,
+            last: view(1),
+            before_last: Some(view(0)),
+            target_pose: &frames[2].2,
+            warped: &warped,
+            ground_truth: None,
+        };
+        assert_eq!(shrunk_temporal_prior(&ctx, 1), ctx.temporal_prior().map(|p| p.prior));
+        let fine = ctx.temporal_prior().unwrap().prior;
+        let shrunk = shrunk_temporal_prior(&ctx, 2).unwrap();
+        let known = warped.holes.known();
+        let mean_x = |field: &VectorField| {
+            let xs: Vec<f32> = field.pixels().iter().filter(|p| p[0] != 0.0).map(|p| p[0]).collect();
+            xs.iter().sum::<f32>() / xs.len().max(1) as f32
+        };
+        assert!(shrunk.pixels().iter().zip(&known).all(|(p, &k)| k || *p == [0.0, 0.0]));
+        // The box slides left in view: both priors point the same way, by about as far.
+        let (a, b) = (mean_x(&fine), mean_x(&shrunk));
+        assert!(a != 0.0 && b != 0.0 && a.signum() == b.signum(), "fine {a}, shrunk {b}");
+        assert!((b / a - 1.0).abs() < 0.5, "fine {a}, shrunk {b}");
+        assert!(shrunk.pixels().iter().flatten().all(|x| x.is_finite()));
     }
 }
