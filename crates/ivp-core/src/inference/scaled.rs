@@ -397,4 +397,25 @@ mod tests {
         assert!((b / a - 1.0).abs() < 0.5, "fine {a}, shrunk {b}");
         assert!(shrunk.pixels().iter().flatten().all(|x| x.is_finite()));
     }
+
+    #[test]
+    fn a_network_shrunk_to_a_few_pixels_still_fills_every_hole() {
+        use crate::nn::model::{IvpNet, ModelConfig, Variant};
+        let (net, _) = IvpNet::seeded(ModelConfig { variant: Variant::Full, width_mult: 0.125 }, 5).unwrap();
+        // 37 x 23 pixels at factor 16: 3 x 2 blocks, one of them holding the whole hole.
+        let (w, h) = (37, 23);
+        let holes: Vec<bool> = (0..w * h).map(|i| (10..14).contains(&(i % w)) && (5..9).contains(&(i / w))).collect();
+        let depth = DepthMap::from_fn(w, h, |u, v| [if holes[v * w + u] { 0.0 } else { 3.0 + u as f32 }]);
+        let prior = VectorField::zeros(w, h);
+        for factor in [16, 40] {
+            let vectors = ScaledPredictor::new(&net, factor).predict(&prior, &depth, &holes).unwrap();
+            assert_eq!((vectors.width(), vectors.height()), (w, h));
+            for (i, v) in vectors.pixels().iter().enumerate() {
+                assert!(v.iter().all(|x| x.is_finite()), "factor {factor}, pixel {i}: {v:?}");
+                if !holes[i] {
+                    assert_eq!(*v, [0.0, 0.0]);
+                }
+            }
+        }
+    }
 }
