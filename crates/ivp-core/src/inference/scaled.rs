@@ -137,17 +137,7 @@ impl<P: VectorPredictor> VectorPredictor for ScaledPredictor<P> {
                 }
             });
         let coarse = self.inner.predict(&coarse_prior, &coarse_depth, &coarse_holes)?;
-        let grown = s as f32;
-        let mut vectors = VectorField::zeros(w, h);
-        vectors.pixels_mut().par_chunks_mut(w.max(1)).enumerate().for_each(|(v, row)| {
-            for (u, out) in row.iter_mut().enumerate() {
-                if holes[v * w + u] {
-                    let [x, y] = coarse.get(u / s, v / s);
-                    *out = [x * grown, y * grown];
-                }
-            }
-        });
-        Ok(vectors)
+        Ok(grow_vectors(&coarse, s, w, h, holes))
     }
 }
 
@@ -182,17 +172,24 @@ pub fn shrunk_temporal_prior(ctx: &InfillContext<'_>, factor: usize) -> Option<V
         .collect();
     let k = shrink_intrinsics(ctx.intrinsics, s);
     let coarse = target_prior(&view_b, &view_n, ctx.target_pose, &k, &coarse_known).prior;
+    Some(grow_vectors(&coarse, s, w, h, &known))
+}
+
+/// A `w x h` field in which each pixel marked in `at` takes `s` times the vector of its block of
+/// `coarse` (vectors are in pixels, so they grow with the frame); the others are 0.
+fn grow_vectors(coarse: &VectorField, s: usize, w: usize, h: usize, at: &[bool]) -> VectorField {
     let grown = s as f32;
-    let mut prior = VectorField::zeros(w, h);
-    prior.pixels_mut().par_chunks_mut(w.max(1)).enumerate().for_each(|(v, row)| {
+    let mut field = VectorField::zeros(w, h);
+    field.pixels_mut().par_chunks_mut(w.max(1)).enumerate().for_each(|(v, row)| {
         for (u, out) in row.iter_mut().enumerate() {
-            if known[v * w + u] {
+            if at[v * w + u] {
                 let [x, y] = coarse.get(u / s, v / s);
                 *out = [x * grown, y * grown];
             }
         }
     });
-    Some(prior)
+    debug_assert!(h == 0 || coarse.height() == h.div_ceil(s));
+    field
 }
 
 /// The intrinsics of a frame shrunk by blocks of `s`: pixel centres at integers, so block `c`
