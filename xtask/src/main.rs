@@ -37,7 +37,7 @@ enum Task {
         /// The Blender clips to score on (besides the generated held-out split).
         #[arg(long, default_value = "data/blender-dev")]
         data: PathBuf,
-        /// Run folders go to OUT/<variant>/seed<k>, the tables to OUT/ablations.{md,csv}.
+        /// Run folders go to `OUT/<variant>/seed<k>`, the tables to `OUT/ablations.{md,csv}`.
         #[arg(long, default_value = "runs/ablate")]
         out: PathBuf,
         /// A smoke test of the whole pipeline: 4 steps of a tiny network, tiny held-out clips,
