@@ -49,7 +49,7 @@ def main():
              "python3 results/resolution/table.py` (the scores of `run.sh`, this table by `table.py`), "
              "on 2 cores. The model rows are the `full` runs of `results/ablate` (the default recipe, "
              "one per seed): mean ± sample standard deviation over the seeds. Scale `auto` is 1 at "
-             "320x240 and 3 at 1080p (ALGORITHMS.md §6.7). D-MSE / fill compares with `fill` on the "
+             "320x240 and 2 at 1080p (ALGORITHMS.md §6.7). D-MSE / fill compares with `fill` on the "
              "same frames; TC needs 12-frame clips (the 1080p Blender clip has 6 frames).", ""]
     for key, title in DATASETS:
         files = sorted(glob.glob(os.path.join(HERE, f"scores_{key}_scale-*.json")))

@@ -45,7 +45,7 @@ fn sparse_and_dense_agree_on_a_full_hd_frame() {
     let holes = disocclusions.iter().filter(|&&d| d).count();
     assert!(holes > 500, "the generated frame has only {holes} disocclusion pixels");
 
-    // At full size, and shrunk as the default does (the network runs at 640x360).
+    // At full size, and shrunk as the default does (the network runs at 960x540).
     for scale in [Scale::Factor(1), Scale::Auto] {
         let dense = predict(&clip, &warp, Coverage::Dense, scale);
         let sparse = predict(&clip, &warp, Coverage::Sparse(TileShape::DEFAULT), scale);

@@ -72,8 +72,8 @@ pub struct CoverageArgs {
     /// Context read around each cell, in pixels (a multiple of 16).
     #[arg(long, default_value_t = TileShape::DEFAULT.margin)]
     pub tile_margin: usize,
-    /// Shrink frames by this integer factor before the network sees them; `auto` shrinks frames
-    /// taller than 240 rows (the height the recipe trains at) towards that height.
+    /// Shrink frames by this integer factor before the network and the temporal prior see them;
+    /// `auto` shrinks frames of 810 rows or more towards 540 rows (2 at 1080p).
     #[arg(long, default_value_t = Scale::Auto)]
     pub scale: Scale,
 }
