@@ -1,6 +1,7 @@
 //! `cargo xtask bench --speed-vs-error`: time per frame against D-MSE for the classical methods
-//! and trained models (width multipliers, iterations P = 1, 2, 3, sparse and dense), at 320x240
-//! and 1920x1080, by running `ivp eval`; `OUT/speed_vs_error.{csv,md,svg}` with the Pareto front.
+//! and trained models (width multipliers, iterations P = 1, 2, 3, sparse and dense, and at 1080p
+//! also at full size, `--scale 1`), at 320x240 and 1920x1080, by running `ivp eval`;
+//! `OUT/speed_vs_error.{csv,md,svg}` with the Pareto front.
 //!
 //! Time per frame is `ivp eval`'s `ms_per_frame`: the whole prediction of a frame (the warp, and
 //! for a model the temporal prior, P passes of the network and the infilling), on the same frames
@@ -56,6 +57,9 @@ struct Dataset {
     height: usize,
     dir: PathBuf,
     targets: &'static str,
+    /// The large frames: models also run at full size (`--scale 1`) beside the default, which
+    /// shrinks large frames (ALGORITHMS.md §6.7).
+    large: bool,
 }
 
 impl Dataset {
@@ -69,6 +73,8 @@ impl Dataset {
 pub enum Coverage {
     Sparse,
     Dense,
+    /// Sparse, with the frame at full size however large (`--scale 1`).
+    SparseFullSize,
 }
 
 impl Coverage {
@@ -76,6 +82,16 @@ impl Coverage {
         match self {
             Coverage::Sparse => "sparse",
             Coverage::Dense => "dense",
+            Coverage::SparseFullSize => "sparse full-size",
+        }
+    }
+
+    /// The flags of `ivp eval` that select it.
+    fn flags(self) -> &'static [&'static str] {
+        match self {
+            Coverage::Sparse => &[],
+            Coverage::Dense => &["--dense"],
+            Coverage::SparseFullSize => &["--scale", "1"],
         }
     }
 }
@@ -141,28 +157,30 @@ pub fn speed_vs_error(ivp: &Path, options: &Options) -> Result<()> {
 /// The 320x240 clips (generated when `--data` is absent), a generated 1920x1080 clip, and the
 /// 1920x1080 Blender clip when it exists; in `--quick`, two tiny generated datasets in their place.
 fn prepare_datasets(ivp: &Path, options: &Options) -> Result<Vec<Dataset>> {
-    let generated = |width: usize, height: usize, clips: usize, frames: usize, targets| -> Result<Dataset> {
+    let generated = |width: usize, height: usize, clips: usize, frames: usize, targets, large| -> Result<Dataset> {
         let name = format!("generated-{width}x{height}");
         let dir = options.work.join(&name);
         generate(ivp, &dir, (width, height), clips, frames)?;
-        Ok(Dataset { name, width, height, dir, targets })
+        Ok(Dataset { name, width, height, dir, targets, large })
     };
     if options.quick {
-        return Ok(vec![generated(96, 72, 1, 12, "6,8,10")?, generated(192, 108, 1, 6, "3,4,5")?]);
+        return Ok(vec![generated(96, 72, 1, 12, "6,8,10", false)?, generated(192, 108, 1, 6, "3,4,5", true)?]);
     }
     let mut datasets = Vec::new();
     if options.data.is_dir() {
         let name = folder_name(&options.data);
-        datasets.push(Dataset { name, width: 320, height: 240, dir: options.data.clone(), targets: "6,8,10" });
+        let dir = options.data.clone();
+        datasets.push(Dataset { name, width: 320, height: 240, dir, targets: "6,8,10", large: false });
     } else {
         eprintln!("warning: {} is missing; generated 320x240 clips stand in for it", options.data.display());
-        datasets.push(generated(320, 240, 4, 12, "6,8,10")?);
+        datasets.push(generated(320, 240, 4, 12, "6,8,10", false)?);
     }
     // 6 frames, like the Blender clip: targets 3, 4, 5 (no TC) at a twentieth of the rendering time.
-    datasets.push(generated(1920, 1080, 1, 6, "3,4,5")?);
+    datasets.push(generated(1920, 1080, 1, 6, "3,4,5", true)?);
     if options.data_hd.is_dir() {
         let name = folder_name(&options.data_hd);
-        datasets.push(Dataset { name, width: 1920, height: 1080, dir: options.data_hd.clone(), targets: "3,4,5" });
+        let dir = options.data_hd.clone();
+        datasets.push(Dataset { name, width: 1920, height: 1080, dir, targets: "3,4,5", large: true });
     } else {
         eprintln!("warning: {} is missing; scoring 1920x1080 on the generated clip only", options.data_hd.display());
     }
@@ -237,12 +255,14 @@ fn measure_dataset(
     }
     let names: Vec<String> = models.iter().map(|(w, _)| model_name(w)).collect();
     let specs: Vec<String> = models.iter().zip(&names).map(|((_, f), n)| format!("{n}={}", f.display())).collect();
-    for coverage in [Coverage::Sparse, Coverage::Dense] {
+    let mut coverages = vec![Coverage::Sparse, Coverage::Dense];
+    if dataset.large {
+        coverages.push(Coverage::SparseFullSize);
+    }
+    for coverage in coverages {
         for iterations in ITERATIONS {
             let mut extra = vec!["--iterations".to_string(), iterations.to_string()];
-            if coverage == Coverage::Dense {
-                extra.push("--dense".to_string());
-            }
+            extra.extend(coverage.flags().iter().map(|f| f.to_string()));
             let label = format!("P{iterations}-{}", coverage.name());
             let report = eval(ivp, options, dataset, &names.join(","), &specs, &extra, &label)?;
             for ((width, _), name) in models.iter().zip(&names) {
@@ -480,7 +500,7 @@ fn timed_series<'a>(measurements: impl Iterator<Item = &'a Measurement>) -> Vec<
                 });
                 let name = format!("ivp, width {width}, {}", coverage.name());
                 let colour = ivp_plot::colour(CLASSICAL.len() + i);
-                (name, colour, Some(*coverage == Coverage::Dense), Some(format!("P{iterations}")))
+                (name, colour, Some(*coverage != Coverage::Sparse), Some(format!("P{iterations}")))
             }
         };
         match series.iter_mut().find(|s| s.name == name) {
@@ -597,10 +617,13 @@ mod tests {
         speed_vs_error(&ivp, &options).unwrap();
         let csv = std::fs::read_to_string(options.out.join("speed_vs_error.csv")).unwrap();
         let rows: Vec<Vec<&str>> = csv.lines().skip(1).map(|l| l.split(',').collect()).collect();
-        // 2 datasets x (5 classical + 1 width x 3 iterations x 2 coverages).
-        assert_eq!(rows.len(), 2 * (CLASSICAL.len() + ITERATIONS.len() * 2), "{csv}");
+        // 2 datasets x (5 classical + 1 width x 3 iterations x 2 coverages), and the large one
+        // at full size too.
+        assert_eq!(rows.len(), 2 * (CLASSICAL.len() + ITERATIONS.len() * 2) + ITERATIONS.len(), "{csv}");
         let models: Vec<_> = rows.iter().filter(|r| r[2] == "ivp").map(|r| (r[0], r[4], r[5])).collect();
         assert!(models.contains(&("generated-192x108", "2", "dense")), "{csv}");
+        assert!(models.contains(&("generated-192x108", "3", "sparse full-size")), "{csv}");
+        assert!(!models.iter().any(|m| m.0 == "generated-96x72" && m.2 == "sparse full-size"), "{csv}");
         assert!(rows.iter().all(|r| r[6].parse::<f64>().is_ok()), "{csv}");
         assert!(rows.iter().any(|r| r[10] == "true"), "no point on the front: {csv}");
         let md = std::fs::read_to_string(options.out.join("speed_vs_error.md")).unwrap();
