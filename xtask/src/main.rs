@@ -227,14 +227,19 @@ fn build_ivp(root: &Path) -> Result<PathBuf> {
     if !status.success() {
         bail!("cargo build failed");
     }
-    Ok(root.join("target/release/ivp"))
+    Ok(target_dir(root).join("release/ivp"))
 }
 
 /// Builds the `ivp` binary in the dev profile (what the tests already built) and returns its path.
 fn build_ivp_debug(root: &Path) -> Result<PathBuf> {
     let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
     run(Command::new(cargo).current_dir(root).args(["build", "-p", "ivp-train", "--bin", "ivp"]))?;
-    Ok(root.join("target/debug/ivp"))
+    Ok(target_dir(root).join("debug/ivp"))
+}
+
+/// Where cargo puts what it builds: `CARGO_TARGET_DIR` (relative to the workspace) when set.
+fn target_dir(root: &Path) -> PathBuf {
+    std::env::var_os("CARGO_TARGET_DIR").map_or_else(|| root.join("target"), |dir| root.join(dir))
 }
 
 fn run(cmd: &mut Command) -> Result<()> {
