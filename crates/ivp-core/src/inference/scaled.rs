@@ -70,7 +70,7 @@ impl std::fmt::Display for Scale {
 ///
 /// Shrinking, for each block:
 /// - a hole if any of its pixels is one (so every hole pixel has a coarse prediction);
-/// - depth: the mean of its known depths (0 for a hole block, as the network expects);
+/// - depth: as [`shrink_depth`] says (0 for a hole block, as the network expects);
 /// - prior: the mean of its non-zero vectors divided by `factor` (0 for a hole block).
 ///
 /// Growing: each hole pixel takes `factor` times the vector of its block.
@@ -96,47 +96,15 @@ impl<P: VectorPredictor> VectorPredictor for ScaledPredictor<P> {
             return self.inner.predict(prior, depth, holes);
         }
         let (w, h) = (depth.width(), depth.height());
-        let (cw, ch) = (w.div_ceil(s), h.div_ceil(s));
-        let mut coarse_holes = vec![false; cw * ch];
-        let mut coarse_depth = DepthMap::zeros(cw, ch);
-        let mut coarse_prior = VectorField::zeros(cw, ch);
-        // One coarse row per task: the blocks of a row of blocks.
-        coarse_holes
-            .par_chunks_mut(cw)
-            .zip(coarse_depth.pixels_mut().par_chunks_mut(cw))
-            .zip(coarse_prior.pixels_mut().par_chunks_mut(cw))
-            .enumerate()
-            .for_each(|(cv, ((holes_row, depth_row), prior_row))| {
-                for cu in 0..cw {
-                    let (mut hole, mut depth_sum, mut depths, mut prior_sum, mut priors) =
-                        (false, 0f64, 0u32, [0f64; 2], 0u32);
-                    for v in cv * s..((cv + 1) * s).min(h) {
-                        for u in cu * s..((cu + 1) * s).min(w) {
-                            let i = v * w + u;
-                            hole |= holes[i];
-                            let [z] = depth.pixels()[i];
-                            if z != 0.0 && !z.is_nan() {
-                                depth_sum += z as f64;
-                                depths += 1;
-                            }
-                            let [x, y] = prior.pixels()[i];
-                            if x != 0.0 || y != 0.0 {
-                                prior_sum[0] += x as f64;
-                                prior_sum[1] += y as f64;
-                                priors += 1;
-                            }
-                        }
-                    }
-                    holes_row[cu] = hole;
-                    if !hole && depths > 0 {
-                        depth_row[cu] = [(depth_sum / depths as f64) as f32];
-                    }
-                    if !hole && priors > 0 {
-                        let scale = (priors as usize * s) as f64;
-                        prior_row[cu] = [(prior_sum[0] / scale) as f32, (prior_sum[1] / scale) as f32];
-                    }
-                }
-            });
+        let coarse_holes = blocks_with(w, h, s, |i| holes[i]);
+        // The network saw no depth and no prior on holes in training.
+        let mut coarse_depth = shrink_depth(depth, s);
+        let mut coarse_prior = shrink_vectors(prior, s);
+        for ((hole, z), p) in coarse_holes.iter().zip(coarse_depth.pixels_mut()).zip(coarse_prior.pixels_mut()) {
+            if *hole {
+                (*z, *p) = ([0.0], [0.0, 0.0]);
+            }
+        }
         let coarse = self.inner.predict(&coarse_prior, &coarse_depth, &coarse_holes)?;
         Ok(grow_vectors(&coarse, s, w, h, holes))
     }
@@ -162,15 +130,8 @@ pub fn shrunk_temporal_prior(ctx: &InfillContext<'_>, factor: usize) -> Option<V
     let holes = &ctx.warped.holes;
     let (w, h) = (holes.width(), holes.height());
     let known = holes.known();
-    let (cw, ch) = (w.div_ceil(s), h.div_ceil(s));
     // A block is known when all its pixels are (as in ScaledPredictor, where any hole makes a hole).
-    let coarse_known: Vec<bool> = (0..cw * ch)
-        .into_par_iter()
-        .map(|c| {
-            let (cu, cv) = (c % cw, c / cw);
-            (cv * s..((cv + 1) * s).min(h)).all(|v| (cu * s..((cu + 1) * s).min(w)).all(|u| known[v * w + u]))
-        })
-        .collect();
+    let coarse_known: Vec<bool> = blocks_with(w, h, s, |i| !known[i]).into_iter().map(|hole| !hole).collect();
     let k = shrink_intrinsics(ctx.intrinsics, s);
     let coarse = target_prior(&view_b, &view_n, ctx.target_pose, &k, &coarse_known).prior;
     Some(grow_vectors(&coarse, s, w, h, &known))
@@ -202,55 +163,89 @@ pub fn shrink_intrinsics(k: &Intrinsics, s: usize) -> Intrinsics {
 
 /// Each block of `s x s` pixels (partial at the right and bottom) becomes its mean colour.
 pub fn shrink_image(image: &RgbImage, s: usize) -> RgbImage {
-    shrink_blocks(image, s, |pixels| {
-        let mut sum = [0f64; 3];
-        let mut n = 0usize;
-        for p in pixels {
-            for c in 0..3 {
-                sum[c] += p[c] as f64;
-            }
-            n += 1;
-        }
-        sum.map(|x| (x / n as f64) as f32)
-    })
+    shrink_blocks(
+        image,
+        s,
+        |(sum, n): &mut ([f64; 3], usize), p| {
+            (0..3).for_each(|c| sum[c] += p[c] as f64);
+            *n += 1;
+        },
+        |(sum, n)| sum.map(|x| (x / n as f64) as f32),
+    )
 }
 
 /// Each block of `s x s` depths becomes the mean of its valid depths; a block without any is
 /// `+inf` when it holds sky (`+inf`) and 0 (missing) otherwise.
 pub fn shrink_depth(depth: &DepthMap, s: usize) -> DepthMap {
-    shrink_blocks(depth, s, |pixels| {
-        let (mut sum, mut n, mut sky) = (0f64, 0usize, false);
-        for [z] in pixels {
+    shrink_blocks(
+        depth,
+        s,
+        |(sum, n, sky): &mut (f64, usize, bool), [z]| {
             if is_valid_depth(z) {
-                sum += z as f64;
-                n += 1;
+                *sum += z as f64;
+                *n += 1;
             }
-            sky |= z == f32::INFINITY;
-        }
-        [if n > 0 {
-            (sum / n as f64) as f32
-        } else if sky {
-            f32::INFINITY
-        } else {
-            0.0
-        }]
-    })
+            *sky |= z == f32::INFINITY;
+        },
+        |(sum, n, sky)| {
+            [if n > 0 {
+                (sum / n as f64) as f32
+            } else if sky {
+                f32::INFINITY
+            } else {
+                0.0
+            }]
+        },
+    )
 }
 
-/// `image` shrunk by blocks of `s x s`, each block reduced by `reduce` over its pixels.
-fn shrink_blocks<const C: usize>(
+/// Each block of `s x s` vectors (in pixels) becomes the mean of its non-zero vectors divided by
+/// `s`, or 0 when it has none.
+fn shrink_vectors(field: &VectorField, s: usize) -> VectorField {
+    shrink_blocks(
+        field,
+        s,
+        |(sum, n): &mut ([f64; 2], usize), [x, y]| {
+            if x != 0.0 || y != 0.0 {
+                *sum = [sum[0] + x as f64, sum[1] + y as f64];
+                *n += 1;
+            }
+        },
+        |(sum, n)| if n == 0 { [0.0, 0.0] } else { sum.map(|x| (x / (n * s) as f64) as f32) },
+    )
+}
+
+/// For each block of `s x s` pixels of a `w x h` frame, whether any of its pixels (row-major
+/// index `i`) is `marked`.
+fn blocks_with(w: usize, h: usize, s: usize, marked: impl Fn(usize) -> bool + Sync) -> Vec<bool> {
+    let cw = w.div_ceil(s);
+    (0..cw * h.div_ceil(s))
+        .into_par_iter()
+        .map(|c| {
+            let (cu, cv) = (c % cw, c / cw);
+            (cv * s..((cv + 1) * s).min(h)).any(|v| (cu * s..((cu + 1) * s).min(w)).any(|u| marked(v * w + u)))
+        })
+        .collect()
+}
+
+/// `image` shrunk by blocks of `s x s`: each block's pixels are folded into an accumulator by
+/// `add`, which `finish` turns into the block's value.
+fn shrink_blocks<const C: usize, A: Default>(
     image: &Image<C>,
     s: usize,
-    reduce: impl Fn(&mut dyn Iterator<Item = [f32; C]>) -> [f32; C] + Sync,
+    add: impl Fn(&mut A, [f32; C]) + Sync,
+    finish: impl Fn(A) -> [f32; C] + Sync,
 ) -> Image<C> {
     let (w, h) = (image.width(), image.height());
     let (cw, ch) = (w.div_ceil(s), h.div_ceil(s));
     let mut out = Image::zeros(cw, ch);
     out.pixels_mut().par_chunks_mut(cw.max(1)).enumerate().for_each(|(cv, row)| {
         for (cu, cell) in row.iter_mut().enumerate() {
-            let rows = cv * s..((cv + 1) * s).min(h);
-            let mut pixels = rows.flat_map(|v| image.row(v)[cu * s..((cu + 1) * s).min(w)].iter().copied());
-            *cell = reduce(&mut pixels);
+            let mut acc = A::default();
+            for v in cv * s..((cv + 1) * s).min(h) {
+                image.row(v)[cu * s..((cu + 1) * s).min(w)].iter().for_each(|&p| add(&mut acc, p));
+            }
+            *cell = finish(acc);
         }
     });
     out
