@@ -284,6 +284,9 @@ fn to_markdown(scores: &[Score], sweep: &Sweep) -> String {
         }
         out.push('\n');
     }
+    if sweep.seeds.len() > 1 {
+        out.push_str(&differences_markdown(scores));
+    }
     out.push_str("![D-MSE per row and dataset](ablations.svg)\n\n");
     let steps = sweep.steps.map_or(String::new(), |s| format!(" --steps {s}"));
     let quick = if sweep.quick { " --quick" } else { "" };
@@ -293,6 +296,83 @@ fn to_markdown(scores: &[Score], sweep: &Sweep) -> String {
         seeds.join(","),
         sweep.out.display()
     );
+    out
+}
+
+/// A row's D-MSE against `full`'s, seed by seed: the same seed gives both runs the same training
+/// data, so the paired difference removes the part of the spread that the data and the seed share.
+#[derive(Clone, Debug, PartialEq)]
+struct Difference {
+    row: &'static str,
+    /// Mean and sample standard deviation of `row - full` over the seeds both have.
+    mean: f64,
+    std: f64,
+    /// Seeds where the difference has the sign of the mean, out of `seeds`.
+    agreeing: usize,
+    seeds: usize,
+    /// The larger of the two rows' standard deviations over seeds (unpaired).
+    spread: f64,
+}
+
+impl Difference {
+    /// Whether the difference is larger than the seed spread: its mean exceeds both the unpaired
+    /// spread of either row and the paired spread, and every seed agrees on its sign.
+    fn beyond_spread(&self) -> bool {
+        self.mean.abs() > self.spread && self.mean.abs() > self.std && self.agreeing == self.seeds
+    }
+}
+
+/// The paired difference of every row to `full` on `dataset` (rows with fewer than two shared
+/// seeds are left out: one seed has no spread).
+fn differences_to_full(scores: &[Score], dataset: &str) -> Vec<Difference> {
+    let of = |row: &str| -> BTreeMap<u64, f64> {
+        scores.iter().filter(|s| s.row == row && s.dataset == dataset).map(|s| (s.seed, s.d_mse)).collect()
+    };
+    let full = of("full");
+    table_rows()
+        .filter(|&row| row != "full")
+        .filter_map(|row| {
+            let this = of(row);
+            let differences: Vec<f64> =
+                this.iter().filter_map(|(seed, v)| full.get(seed).map(|f| v - f)).collect();
+            if differences.len() < 2 {
+                return None;
+            }
+            let (mean, std) = mean_std(&differences);
+            let agreeing = differences.iter().filter(|d| d.signum() == mean.signum()).count();
+            let spread_of = |values: &BTreeMap<u64, f64>| mean_std(&values.values().copied().collect::<Vec<_>>()).1;
+            let spread = spread_of(&this).max(spread_of(&full));
+            Some(Difference { row, mean, std, agreeing, seeds: differences.len(), spread })
+        })
+        .collect()
+}
+
+fn differences_markdown(scores: &[Score]) -> String {
+    let mut out = String::from(
+        "## Differences from `full`, paired by seed\n\n\
+         D-MSE of the row minus D-MSE of `full` with the same seed (the same training data), mean ± \
+         standard deviation over the seeds; \"seeds agreeing\" counts the seeds whose difference has \
+         the mean's sign. A difference is called larger than the seed spread when its mean exceeds \
+         the standard deviation over seeds of either row and of the paired differences, and every \
+         seed agrees on its sign.\n\n",
+    );
+    for dataset in datasets_of(scores) {
+        let differences = differences_to_full(scores, dataset);
+        if differences.is_empty() {
+            continue;
+        }
+        let _ = writeln!(out, "| {dataset}: row - full | D-MSE difference | seeds agreeing | larger than the seed spread |");
+        let _ = writeln!(out, "|---|---|---|---|");
+        for d in differences {
+            let verdict = if d.beyond_spread() { "yes" } else { "no" };
+            let _ = writeln!(
+                out,
+                "| {} | {:+.1} ± {:.1} | {} of {} | {verdict} (spread {:.1}) |",
+                d.row, d.mean, d.std, d.agreeing, d.seeds, d.spread
+            );
+        }
+        out.push('\n');
+    }
     out
 }
 
@@ -319,6 +399,37 @@ mod tests {
     fn score(row: &'static str, seed: u64, dataset: &str, d_mse: f64) -> Score {
         let dataset = dataset.to_string();
         Score { row, seed, dataset, d_mse, d_ssim: 0.8, tc: None, ms_per_frame: 3.0, train_minutes: 1.0 }
+    }
+
+    #[test]
+    fn differences_are_paired_by_seed_and_judged_against_the_spread() {
+        let scores = [
+            score("full", 0, "g", 400.0),
+            score("full", 1, "g", 500.0),
+            score("full", 2, "g", 450.0),
+            // Worse by 20-40 on every seed, much less than full's spread of 50 across seeds.
+            score("no-depth", 0, "g", 420.0),
+            score("no-depth", 1, "g", 540.0),
+            score("no-depth", 2, "g", 480.0),
+            // Worse by 200 on every seed.
+            score("intensity", 0, "g", 600.0),
+            score("intensity", 1, "g", 700.0),
+            score("intensity", 2, "g", 650.0),
+            // One seed only: no spread, no row.
+            score("no-tg", 0, "g", 900.0),
+        ];
+        let differences = differences_to_full(&scores, "g");
+        let rows: Vec<&str> = differences.iter().map(|d| d.row).collect();
+        assert_eq!(rows, ["intensity", "no-depth"]);
+        let (intensity, no_depth) = (&differences[0], &differences[1]);
+        assert_eq!((intensity.mean, intensity.std, intensity.agreeing), (200.0, 0.0, 3));
+        assert!(intensity.beyond_spread());
+        assert_eq!((no_depth.mean, no_depth.std, no_depth.agreeing, no_depth.seeds), (30.0, 10.0, 3, 3));
+        assert!((no_depth.spread - 60.0).abs() < 1e-9, "no-depth's own spread (60) is the larger");
+        assert!(!no_depth.beyond_spread());
+        let markdown = differences_markdown(&scores);
+        assert!(markdown.contains("| intensity | +200.0 ± 0.0 | 3 of 3 | yes"), "{markdown}");
+        assert!(markdown.contains("| no-depth | +30.0 ± 10.0 | 3 of 3 | no"), "{markdown}");
     }
 
     #[test]
