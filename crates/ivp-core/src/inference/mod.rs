@@ -129,6 +129,13 @@ fn predict_frame(
                 (out, scaled.inner().tiles_run())
             }
         };
+        tracing::debug!(
+            factor,
+            filled_per_iteration = ?out.filled_per_iteration,
+            walked = out.walked,
+            fell_back = out.fell_back,
+            "iterative infilling"
+        );
         return Ok(FramePrediction {
             image: out.image,
             vectors: Some(out.vectors),
