@@ -9,7 +9,7 @@ static GLOBAL: mimalloc::MiMalloc = mimalloc::MiMalloc;
 
 use criterion::{criterion_group, criterion_main, Criterion};
 use glam::{DMat4, DVec3};
-use ivp_core::geometry::FrameView;
+use ivp_core::geometry::{FrameView, NearestKnown};
 use ivp_core::inference::{plan_tiles, TileShape};
 use ivp_core::infill::{classical_infiller, fill_new_regions, InfillContext};
 use ivp_core::prior::{background_depth_threshold, target_prior};
@@ -31,6 +31,8 @@ fn bench_stages(c: &mut Criterion) {
     let warp = warp_forward(&frames[1].0, &frames[1].1, &k, &relative_pose(&frames[1].2, &frames[2].2));
     let known = warp.holes.known();
     let holes = warp.holes.disocclusions();
+    let hole_pixels = known.iter().filter(|&&k| !k).count();
+    println!("{hole_pixels} of {} pixels are not known ({:.1}%)", w * h, 100.0 * hole_pixels as f64 / (w * h) as f64);
     let ctx = InfillContext {
         intrinsics: &k,
         last: view(1),
@@ -42,6 +44,7 @@ fn bench_stages(c: &mut Criterion) {
     let mut group = c.benchmark_group("frame_stages_1920x1080");
     group.sample_size(20);
     group.bench_function("target_prior", |b| b.iter(|| target_prior(&view(0), &view(1), &frames[2].2, &k, &known)));
+    group.bench_function("nearest_known", |b| b.iter(|| NearestKnown::new(w, h, &known)));
     group.bench_function("background_depth_threshold", |b| b.iter(|| background_depth_threshold(&known, &warp.depth)));
     group.bench_function("fill_new_regions", |b| {
         b.iter(|| {

@@ -251,16 +251,21 @@ pub fn target_prior(
 pub fn background_depth_threshold(known: &[bool], depth: &DepthMap) -> Vec<Option<f32>> {
     let (w, h) = (depth.width(), depth.height());
     assert_eq!(known.len(), w * h, "known mask does not match the depth map");
-    let nearest = NearestKnown::new(w, h, known);
+    let holes: Vec<usize> = (0..w * h).filter(|&i| !known[i]).collect();
     let mut thresholds = vec![None; w * h];
-    thresholds.par_chunks_mut(w.max(1)).enumerate().for_each(|(v, row)| {
-        for (u, out) in row.iter_mut().enumerate() {
-            if !known[v * w + u] {
-                *out = threshold_at(&nearest, depth, (u, v));
-            }
-        }
-    });
+    for (i, t) in holes.iter().zip(background_depth_thresholds_at(&NearestKnown::new(w, h, known), depth, &holes)) {
+        thresholds[*i] = t;
+    }
     thresholds
+}
+
+/// [`background_depth_threshold`] of the pixels `at` only (row-major indices, none of them known),
+/// in their order, with the [`NearestKnown`] of the known mask already built: a frame's holes are
+/// a small part of it, and its other pixels would only be skipped.
+pub fn background_depth_thresholds_at(nearest: &NearestKnown, depth: &DepthMap, at: &[usize]) -> Vec<Option<f32>> {
+    let w = depth.width();
+    assert!(nearest.width() == w && nearest.height() == depth.height(), "nearest-known size differs from the depth");
+    at.par_iter().with_min_len(256).map(|&i| threshold_at(nearest, depth, (i % w, i / w))).collect()
 }
 
 fn threshold_at(nearest: &NearestKnown, depth: &DepthMap, p: Pixel) -> Option<f32> {

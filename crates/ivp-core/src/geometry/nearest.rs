@@ -1,4 +1,4 @@
-//! The nearest known pixel in each of the four directions, for every pixel, in O(pixels).
+//! The nearest known pixel in each of the four directions, for every pixel.
 
 use rayon::prelude::*;
 
@@ -6,89 +6,140 @@ use crate::geometry::frame::{Direction, Pixel};
 
 /// For every pixel, the nearest known pixel strictly beyond it in each of the four directions.
 ///
-/// Built in O(pixels) once per mask, so that searches from large holes (a frame that is all hole)
-/// cost the same as from small ones, and walking from one known pixel to the next known pixel
-/// along a direction (skipping holes) is a single lookup.
+/// It keeps the runs of unknown pixels of every row and every column, so that a lookup is one
+/// binary search among the runs of one line, whatever the size of the hole it starts in (a frame
+/// that is all hole costs the same as one small hole), and walking from one known pixel to the
+/// next known pixel along a direction (skipping holes) is a single lookup. Building it reads the
+/// mask once and keeps memory in proportion to the runs: holes are a small part of a frame, and
+/// tables of the whole frame would cost more to fill than every lookup together.
 #[derive(Clone, Debug)]
 pub struct NearestKnown {
     width: usize,
     height: usize,
-    /// Column of the nearest known pixel to the left, or [`Self::NONE`].
-    left: Vec<u32>,
-    /// Column of the nearest known pixel to the right, or [`Self::NONE`].
-    right: Vec<u32>,
-    /// Row of the nearest known pixel above, or [`Self::NONE`].
-    up: Vec<u32>,
-    /// Row of the nearest known pixel below, or [`Self::NONE`].
-    down: Vec<u32>,
+    /// Runs of unknown pixels along each row (positions are columns).
+    rows: Runs,
+    /// Runs of unknown pixels along each column (positions are rows).
+    columns: Runs,
+    /// The mask itself: a known neighbour, the common case of walks from known pixels, needs no
+    /// search.
+    known: Vec<bool>,
+}
+
+/// The runs of unknown pixels of some lines of equal length: for each line, disjoint half-open
+/// ranges `start..end` of positions, in increasing order.
+#[derive(Clone, Debug, Default)]
+struct Runs {
+    /// Runs of line `l` are `runs[offsets[l]..offsets[l + 1]]`.
+    offsets: Vec<usize>,
+    runs: Vec<(u32, u32)>,
+    /// Positions per line.
+    length: usize,
+}
+
+impl Runs {
+    /// From the runs of each line, in line order.
+    fn from_lines(lines: Vec<Vec<(u32, u32)>>, length: usize) -> Self {
+        let mut offsets = Vec::with_capacity(lines.len() + 1);
+        offsets.push(0);
+        let mut runs = Vec::with_capacity(lines.iter().map(Vec::len).sum());
+        for line in lines {
+            runs.extend(line);
+            offsets.push(runs.len());
+        }
+        Self { offsets, runs, length }
+    }
+
+    /// The run of line `line` that holds position `x`, if `x` is not known.
+    #[inline]
+    fn run_at(&self, line: usize, x: usize) -> Option<(u32, u32)> {
+        let runs = &self.runs[self.offsets[line]..self.offsets[line + 1]];
+        let after = runs.partition_point(|&(start, _)| start as usize <= x);
+        let &(start, end) = runs[..after].last()?;
+        (x < end as usize).then_some((start, end))
+    }
+
+    /// The nearest known position strictly before `x` on `line`.
+    #[inline]
+    fn before(&self, line: usize, x: usize) -> Option<usize> {
+        let previous = x.checked_sub(1)?;
+        match self.run_at(line, previous) {
+            None => Some(previous),
+            Some((start, _)) => (start as usize).checked_sub(1),
+        }
+    }
+
+    /// The nearest known position strictly after `x` on `line`.
+    #[inline]
+    fn after(&self, line: usize, x: usize) -> Option<usize> {
+        let next = x + 1;
+        if next >= self.length {
+            return None;
+        }
+        match self.run_at(line, next) {
+            None => Some(next),
+            Some((_, end)) => ((end as usize) < self.length).then_some(end as usize),
+        }
+    }
 }
 
 impl NearestKnown {
-    const NONE: u32 = u32::MAX;
-
     /// Panics if `known.len() != width * height` or a side does not fit in `u32`.
     pub fn new(width: usize, height: usize, known: &[bool]) -> Self {
         assert_eq!(known.len(), width * height, "known mask does not match {width}x{height}");
-        assert!(width < Self::NONE as usize && height < Self::NONE as usize, "frame too large");
-        let ((left, right), (up, down)) =
-            rayon::join(|| Self::along_rows(width, known), || Self::along_columns(width, height, known));
-        Self { width, height, left, right, up, down }
+        assert!(width < u32::MAX as usize && height < u32::MAX as usize, "frame too large");
+        let (rows, columns) =
+            rayon::join(|| Self::runs_of_rows(width, known), || Self::runs_of_columns(width, height, known));
+        Self { width, height, rows, columns, known: known.to_vec() }
     }
 
-    fn along_rows(width: usize, known: &[bool]) -> (Vec<u32>, Vec<u32>) {
-        let mut left = vec![Self::NONE; known.len()];
-        let mut right = vec![Self::NONE; known.len()];
-        let chunk = width.max(1);
-        left.par_chunks_mut(chunk).zip(right.par_chunks_mut(chunk)).zip(known.par_chunks(chunk)).for_each(
-            |((left, right), known)| {
-                let mut last = Self::NONE;
-                for u in 0..known.len() {
-                    left[u] = last;
-                    if known[u] {
-                        last = u as u32;
-                    }
+    fn runs_of_rows(width: usize, known: &[bool]) -> Runs {
+        let lines = known
+            .par_chunks(width.max(1))
+            .map(|row| {
+                let mut runs = Vec::new();
+                let mut u = 0;
+                while let Some(start) = row[u..].iter().position(|&k| !k).map(|i| u + i) {
+                    let end = row[start..].iter().position(|&k| k).map_or(row.len(), |i| start + i);
+                    runs.push((start as u32, end as u32));
+                    u = end;
                 }
-                last = Self::NONE;
-                for u in (0..known.len()).rev() {
-                    right[u] = last;
-                    if known[u] {
-                        last = u as u32;
-                    }
-                }
-            },
-        );
-        (left, right)
+                runs
+            })
+            .collect();
+        Runs::from_lines(lines, width)
     }
 
-    fn along_columns(width: usize, height: usize, known: &[bool]) -> (Vec<u32>, Vec<u32>) {
-        // Each row follows from the one before it (above for `up`, below for `down`): the two
-        // sweeps are serial in rows, so they run side by side.
-        rayon::join(
-            || {
-                let mut up = vec![Self::NONE; known.len()];
-                for v in 1..height {
-                    let (done, row) = up.split_at_mut(v * width);
-                    let previous = &done[(v - 1) * width..];
-                    let previous_known = &known[(v - 1) * width..v * width];
-                    for u in 0..width {
-                        row[u] = if previous_known[u] { (v - 1) as u32 } else { previous[u] };
+    /// Bands of columns in parallel, each read row by row (the mask's order in memory).
+    fn runs_of_columns(width: usize, height: usize, known: &[bool]) -> Runs {
+        const BAND: usize = 64;
+        let bands: Vec<Vec<Vec<(u32, u32)>>> = (0..width.div_ceil(BAND))
+            .into_par_iter()
+            .map(|band| {
+                let columns = band * BAND..((band + 1) * BAND).min(width);
+                let mut runs = vec![Vec::new(); columns.len()];
+                let mut open: Vec<Option<u32>> = vec![None; columns.len()];
+                for v in 0..height {
+                    let row = &known[v * width..][columns.clone()];
+                    for ((&k, open), runs) in row.iter().zip(&mut open).zip(&mut runs) {
+                        match (k, *open) {
+                            (false, None) => *open = Some(v as u32),
+                            (true, Some(start)) => {
+                                runs.push((start, v as u32));
+                                *open = None;
+                            }
+                            _ => {}
+                        }
                     }
                 }
-                up
-            },
-            || {
-                let mut down = vec![Self::NONE; known.len()];
-                for v in (0..height.saturating_sub(1)).rev() {
-                    let (row, done) = down.split_at_mut((v + 1) * width);
-                    let row = &mut row[v * width..];
-                    let next_known = &known[(v + 1) * width..(v + 2) * width];
-                    for u in 0..width {
-                        row[u] = if next_known[u] { (v + 1) as u32 } else { done[u] };
+                for (open, runs) in open.into_iter().zip(&mut runs) {
+                    if let Some(start) = open {
+                        runs.push((start, height as u32));
                     }
                 }
-                down
-            },
-        )
+                runs
+            })
+            .collect();
+        Runs::from_lines(bands.into_iter().flatten().collect(), height)
     }
 
     pub fn width(&self) -> usize {
@@ -103,16 +154,21 @@ impl NearestKnown {
     #[inline]
     pub fn beyond(&self, p: Pixel, dir: Direction) -> Option<Pixel> {
         let (u, v) = p;
-        let i = v * self.width + u;
+        debug_assert!(u < self.width && v < self.height, "({u}, {v}) is outside the frame");
+        let neighbour = match dir {
+            Direction::Left => u.checked_sub(1).map(|u| (u, v)),
+            Direction::Right => (u + 1 < self.width).then_some((u + 1, v)),
+            Direction::Up => v.checked_sub(1).map(|v| (u, v)),
+            Direction::Down => (v + 1 < self.height).then_some((u, v + 1)),
+        }?;
+        if self.known[neighbour.1 * self.width + neighbour.0] {
+            return Some(neighbour);
+        }
         match dir {
-            Direction::Left | Direction::Right => {
-                let col = if dir == Direction::Left { self.left[i] } else { self.right[i] };
-                (col != Self::NONE).then_some((col as usize, v))
-            }
-            Direction::Up | Direction::Down => {
-                let row = if dir == Direction::Up { self.up[i] } else { self.down[i] };
-                (row != Self::NONE).then_some((u, row as usize))
-            }
+            Direction::Left => self.rows.before(v, u).map(|u| (u, v)),
+            Direction::Right => self.rows.after(v, u).map(|u| (u, v)),
+            Direction::Up => self.columns.before(u, v).map(|v| (u, v)),
+            Direction::Down => self.columns.after(u, v).map(|v| (u, v)),
         }
     }
 
@@ -127,11 +183,9 @@ impl NearestKnown {
 mod tests {
     use super::*;
 
-    #[test]
-    fn nearest_known_finds_known_pixels_strictly_beyond() {
-        let (w, h) = (7, 5);
-        let known: Vec<bool> = (0..w * h).map(|i| i % 3 == 0).collect();
-        let nearest = NearestKnown::new(w, h, &known);
+    /// Every lookup of `known` against a walk of one pixel at a time.
+    fn check_against_walks(w: usize, h: usize, known: &[bool]) {
+        let nearest = NearestKnown::new(w, h, known);
         let is_known = |(u, v): Pixel| known[v * w + u];
         for v in 0..h {
             for u in 0..w {
@@ -141,9 +195,55 @@ mod tests {
                     while let Some(q) = walk.filter(|&q| !is_known(q)) {
                         walk = dir.step(q, w, h);
                     }
-                    assert_eq!(nearest.beyond((u, v), dir), walk, "({u}, {v}) {dir:?}");
+                    assert_eq!(nearest.beyond((u, v), dir), walk, "{w}x{h}: ({u}, {v}) {dir:?}");
                 }
             }
         }
+    }
+
+    #[test]
+    fn nearest_known_finds_known_pixels_strictly_beyond() {
+        let (w, h) = (7, 5);
+        check_against_walks(w, h, &(0..w * h).map(|i| i % 3 == 0).collect::<Vec<_>>());
+    }
+
+    #[test]
+    fn runs_at_every_border_and_of_every_length() {
+        // Holes touching each side and corner, long and one pixel wide, and bands wider than the
+        // 64 columns that the column runs are built in.
+        let (w, h) = (150, 9);
+        let known: Vec<bool> = (0..w * h)
+            .map(|i| {
+                let (u, v) = (i % w, i / w);
+                !(u < 3 || u >= w - 2 || v == 0 || v == h - 1 || (60..70).contains(&u) || (u * 7 + v * 3) % 11 == 0)
+            })
+            .collect();
+        check_against_walks(w, h, &known);
+    }
+
+    #[test]
+    fn all_hole_no_hole_and_single_lines() {
+        for (w, h) in [(5, 4), (1, 6), (6, 1), (1, 1)] {
+            check_against_walks(w, h, &vec![false; w * h]);
+            check_against_walks(w, h, &vec![true; w * h]);
+            check_against_walks(w, h, &(0..w * h).map(|i| i % 2 == 1).collect::<Vec<_>>());
+        }
+        // An empty frame builds and has nothing to look up.
+        let empty = NearestKnown::new(0, 0, &[]);
+        assert_eq!((empty.width(), empty.height()), (0, 0));
+    }
+
+    #[test]
+    fn memory_follows_the_runs_not_the_frame() {
+        let (w, h) = (1920, 1080);
+        let mut known = vec![true; w * h];
+        known[500 * w + 700..500 * w + 720].iter_mut().for_each(|k| *k = false);
+        let nearest = NearestKnown::new(w, h, &known);
+        assert_eq!(nearest.rows.runs.len(), 1);
+        assert_eq!(nearest.columns.runs.len(), 20);
+        assert_eq!(nearest.beyond((710, 500), Direction::Left), Some((699, 500)));
+        assert_eq!(nearest.beyond((710, 500), Direction::Right), Some((720, 500)));
+        assert_eq!(nearest.beyond((710, 500), Direction::Up), Some((710, 499)));
+        assert_eq!(nearest.beyond((710, 500), Direction::Down), Some((710, 501)));
     }
 }

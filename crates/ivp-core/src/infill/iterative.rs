@@ -18,9 +18,9 @@ use std::time::{Duration, Instant};
 use rayon::prelude::*;
 
 use crate::geometry::{DepthMap, HoleMask, KnownRead, NearestKnown, Pixel, PixelClass, RgbImage, VectorField};
-use crate::infill::rules::{background_source, fill_new_regions};
+use crate::infill::rules::{background_source, fill_new_regions_with};
 use crate::infill::InfillError;
-use crate::prior::background_depth_threshold;
+use crate::prior::background_depth_thresholds_at;
 
 /// P of ALGORITHMS.md §6.5: two iterations that keep background vectors only, then the last.
 pub const DEFAULT_ITERATIONS: usize = 3;
@@ -205,9 +205,13 @@ pub fn infill_iteratively(
         other_time: Duration::ZERO,
     };
 
+    // One search structure of the original known mask serves the thresholds, the `fill`
+    // fallback and the new regions.
+    let original_known = holes.known();
+    let nearest = NearestKnown::new(w, h, &original_known);
     if !remaining.is_empty() {
-        let original_known = holes.known();
-        let thresholds = background_depth_threshold(&original_known, warped_depth);
+        // Aligned with `remaining`, and shrunk with it.
+        let mut thresholds = background_depth_thresholds_at(&nearest, warped_depth, &remaining);
         let mut depth_map = warped_depth.clone();
         depth_map.pixels_mut().par_iter_mut().zip(&original_known).for_each(|(z, &k)| {
             if !k {
@@ -245,27 +249,26 @@ pub fn infill_iteratively(
             };
             let outcomes: Vec<Outcome> = remaining
                 .par_iter()
+                .zip(&thresholds)
                 .with_min_len(PIXELS_PER_TASK)
-                .map(|&i| {
+                .map(|(&i, &threshold)| {
                     let vector = predicted.pixels()[i];
                     if last {
                         last_outcome(&state, (i % w, i / w), vector)
                     } else {
-                        early_outcome(&state, (i % w, i / w), vector, thresholds[i])
+                        early_outcome(&state, (i % w, i / w), vector, threshold)
                     }
                 })
                 .collect();
 
-            // `fill` sources only when some pixel needs one (the search structure costs a frame).
-            let nearest =
-                outcomes.iter().any(|o| matches!(o, Outcome::Fill)).then(|| NearestKnown::new(w, h, &original_known));
-            let mut still_holes = Vec::new();
-            for (&i, outcome) in remaining.iter().zip(&outcomes) {
+            let (mut still_holes, mut still_thresholds) = (Vec::new(), Vec::new());
+            for ((&i, &threshold), outcome) in remaining.iter().zip(&thresholds).zip(&outcomes) {
                 let p = (i % w, i / w);
                 let offset = |[x, y]: [f32; 2]| [x - p.0 as f32, y - p.1 as f32];
                 match *outcome {
                     Outcome::Hole => {
                         still_holes.push(i);
+                        still_thresholds.push(threshold);
                         continue;
                     }
                     Outcome::Read { vector, colour, depth, source, walked } => {
@@ -278,8 +281,7 @@ pub fn infill_iteratively(
                         prior.pixels_mut()[i] = vector;
                     }
                     Outcome::Fill => {
-                        let nearest = nearest.as_ref().expect("built when some pixel falls back");
-                        if let Some(q) = background_source(nearest, warped_depth, p) {
+                        if let Some(q) = background_source(&nearest, warped_depth, p) {
                             let to_source = offset([q.0 as f32, q.1 as f32]);
                             out.image.pixels_mut()[i] = warped.get(q.0, q.1);
                             out.vectors.pixels_mut()[i] = to_source;
@@ -292,12 +294,12 @@ pub fn infill_iteratively(
                 to_fill[i] = false;
                 *filled += 1;
             }
-            remaining = still_holes;
+            (remaining, thresholds) = (still_holes, still_thresholds);
         }
         debug_assert!(remaining.is_empty(), "the last iteration fills every pixel");
     }
 
-    fill_new_regions(&mut out.image, holes);
+    fill_new_regions_with(&mut out.image, holes, &nearest);
     out.other_time = start.elapsed().saturating_sub(out.predict_time);
     Ok(out)
 }
@@ -348,7 +350,7 @@ mod tests {
     use super::*;
     use crate::geometry::image::is_valid_depth;
     use crate::geometry::{relative_pose, sample_known, warp_forward, Direction, Image, Warp, WorldToCamera};
-    use crate::infill::rules::fill_disocclusions_background;
+    use crate::infill::rules::{fill_disocclusions_background, fill_new_regions};
     use crate::test_scene;
 
     /// A predictor made of a closure.

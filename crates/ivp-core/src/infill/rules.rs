@@ -97,9 +97,15 @@ fn assert_mask_matches(image: &RgbImage, holes: &HoleMask) {
 /// along its row (tie: left), else along its column (tie: up), else stays as it is. Reads known
 /// pixels only, so it can run before or after the disocclusions are infilled.
 pub fn fill_new_regions(image: &mut RgbImage, holes: &HoleMask) {
-    assert_mask_matches(image, holes);
     let nearest = NearestKnown::new(holes.width(), holes.height(), &holes.known());
-    copy_from_sources(image, holes, PixelClass::NewRegion, |p| new_region_source(&nearest, p));
+    fill_new_regions_with(image, holes, &nearest);
+}
+
+/// [`fill_new_regions`] with the [`NearestKnown`] of `holes`' known mask already built.
+pub fn fill_new_regions_with(image: &mut RgbImage, holes: &HoleMask, nearest: &NearestKnown) {
+    assert_mask_matches(image, holes);
+    assert!(nearest.width() == holes.width() && nearest.height() == holes.height(), "nearest-known size differs");
+    copy_from_sources(image, holes, PixelClass::NewRegion, |p| new_region_source(nearest, p));
 }
 
 /// The `fill` rule: every disocclusion pixel copies, of the nearest known pixels in the four
