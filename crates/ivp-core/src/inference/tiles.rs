@@ -93,11 +93,13 @@ pub struct Tile {
 /// The tiles of a `width` x `height` frame that cover every cell holding a `marked` pixel.
 ///
 /// Each such cell (`core` pixels on a side) needs itself plus `margin` pixels around it. Cells
-/// whose needs overlap or touch form a group; a group is read as one tile (the bounding box of
-/// its needs) when that box has no more pixels than its cells' needs together, else each cell
-/// is read on its own. Holes are thin slivers along object edges, so most groups are thin
-/// boxes, and merging saves the margins that neighbouring cells would read twice. Tiles are in
-/// row-major order of their first cell; cores in row-major order.
+/// whose needs overlap or touch form a group. A group is read as one tile, the bounding box of
+/// its needs, unless cutting it between two columns or two rows of cells gives two boxes with
+/// fewer pixels together; each side is then cut again the same way ([`partition`]). Holes are
+/// thin slivers along object edges: a sliver stays one thin box, which saves the margins that
+/// neighbouring cells would read twice, while the slivers of a frame with holes everywhere join
+/// into one group whose box would be the whole frame, and the cuts keep the empty space between
+/// them out. Tiles are in row-major order of their first cell; cores in row-major order.
 pub fn plan_tiles(width: usize, height: usize, marked: &[bool], shape: TileShape) -> Vec<Tile> {
     assert_eq!(marked.len(), width * height, "mask does not match {width}x{height}");
     let (columns, rows) = (width.div_ceil(shape.core), height.div_ceil(shape.core));
@@ -147,16 +149,51 @@ pub fn plan_tiles(width: usize, height: usize, marked: &[bool], shape: TileShape
 
     let mut tiles = Vec::new();
     for g in groups {
-        let cores: Vec<Rect> = g.iter().map(|&i| core_of(cells[i])).collect();
-        let needs: Vec<Rect> = cores.iter().map(|&c| need_of(c)).collect();
-        let bounds = needs.iter().skip(1).fold(needs[0], |b, n| b.union(n));
-        if bounds.area() <= needs.iter().map(Rect::area).sum() {
-            tiles.push(Tile { input: bounds, cores });
-        } else {
-            tiles.extend(cores.into_iter().zip(needs).map(|(core, input)| Tile { input, cores: vec![core] }));
+        partition(g.iter().map(|&i| core_of(cells[i])).collect(), &need_of, &mut tiles);
+    }
+    let row_major = |r: &Rect| (r.y, r.x);
+    tiles.sort_by_key(|t| row_major(&t.cores[0]));
+    tiles
+}
+
+/// Tiles for `cores` (one group): the cores are cut in two at the median of their positions
+/// along the longer side of their needs' bounding box, each side is planned the same way, and
+/// the two sides' tiles are kept when they read fewer pixels together than the bounding box,
+/// else the box is one tile. Cores are in row-major order within a tile.
+///
+/// A single cut cannot show that a ring of slivers is cheaper as four thin boxes (either side of
+/// any cut still spans the ring), so the sides are planned before they are compared.
+fn partition(mut cores: Vec<Rect>, need_of: &impl Fn(Rect) -> Rect, tiles: &mut Vec<Tile>) -> usize {
+    let whole = cores.iter().map(|&c| need_of(c)).reduce(|a, b| a.union(&b)).expect("a group has cores");
+    let one_tile = |mut cores: Vec<Rect>, tiles: &mut Vec<Tile>| {
+        cores.sort_by_key(|r| (r.y, r.x));
+        tiles.push(Tile { input: whole, cores });
+        whole.area()
+    };
+    // Cut between two distinct positions along the longer side (else the other), nearest the middle.
+    let mut cut = None;
+    for along_columns in [whole.width >= whole.height, whole.width < whole.height] {
+        let position = |r: &Rect| if along_columns { r.x } else { r.y };
+        cores.sort_by_key(|r| (position(r), if along_columns { r.y } else { r.x }));
+        let middle = cores.len() / 2;
+        let distinct = |k: &usize| position(&cores[k - 1]) != position(&cores[*k]);
+        let nearest = (middle.max(1)..cores.len()).find(distinct).into_iter().chain((1..middle).rev().find(distinct));
+        if let Some(k) = nearest.min_by_key(|k| k.abs_diff(middle)) {
+            cut = Some(k);
+            break;
         }
     }
-    tiles
+    let Some(k) = cut else { return one_tile(cores, tiles) };
+    let first = tiles.len();
+    let rest = cores.split_off(k);
+    let (left, right) = (cores.clone(), rest.clone());
+    let pixels = partition(left, need_of, tiles) + partition(right, need_of, tiles);
+    if pixels < whole.area() {
+        return pixels;
+    }
+    tiles.truncate(first);
+    cores.extend(rest);
+    one_tile(cores, tiles)
 }
 
 /// Disjoint sets of `0..n`, for grouping cells.
@@ -321,8 +358,8 @@ mod tests {
         let shape = TileShape::new(32, 16).unwrap();
         let tiles = plan_tiles(w, h, &marks(w, h, &[(0, 0), (99, 69), (40, 35), (41, 36)]), shape);
         let rect = |x, y, width, height| Rect { x, y, width, height };
-        // One group (within two cells of each other), but its bounding box would read more
-        // pixels than the three cells' needs: each cell is read on its own.
+        // One group (within two cells of each other), whose bounding box (100x70) reads more
+        // than the three cells' needs apart.
         assert_eq!(
             tiles,
             [
@@ -344,6 +381,37 @@ mod tests {
     }
 
     /// A frame with two hole patches, one touching the right border.
+    #[test]
+    fn a_ring_of_holes_is_cut_into_its_sides() {
+        // The outline of a square: one group of cells whose bounding box is nearly the frame.
+        let (w, h) = (640, 640);
+        let ring: Vec<(usize, usize)> = (0..w * h)
+            .map(|i| (i % w, i / w))
+            .filter(|&(u, v)| (40..600).contains(&u) && (40..600).contains(&v))
+            .filter(|&(u, v)| !((44..596).contains(&u) && (44..596).contains(&v)))
+            .collect();
+        let marked = marks(w, h, &ring);
+        let shape = TileShape::new(16, 32).unwrap();
+        let tiles = plan_tiles(w, h, &marked, shape);
+        let pixels: usize = tiles.iter().map(|t| t.input.area()).sum();
+        // The bounding box is the whole frame; four thin sides would read 44% of it.
+        assert!(tiles.len() >= 4 && pixels * 5 < w * h * 3, "{} tiles read {pixels} pixels", tiles.len());
+        // Every marked pixel lies in exactly one core, and each core has its margin in its tile
+        // wherever the frame allows.
+        for &(u, v) in &ring {
+            let holders: Vec<(&Tile, &Rect)> = tiles
+                .iter()
+                .flat_map(|t| t.cores.iter().map(move |c| (t, c)))
+                .filter(|(_, c)| (c.x..c.x + c.width).contains(&u) && (c.y..c.y + c.height).contains(&v))
+                .collect();
+            assert_eq!(holders.len(), 1, "({u}, {v})");
+            let (tile, core) = holders[0];
+            let (i, c) = (tile.input, core);
+            assert!(i.x <= c.x.saturating_sub(32) && i.y <= c.y.saturating_sub(32));
+            assert!(i.x + i.width >= (c.x + c.width + 32).min(w) && i.y + i.height >= (c.y + c.height + 32).min(h));
+        }
+    }
+
     fn frame(w: usize, h: usize) -> (VectorField, DepthMap, Vec<bool>) {
         let holes: Vec<bool> =
             (0..w * h).map(|i| matches!((i % w, i / w), (20..=27, 30..=60) | (150..=159, 5..=12))).collect();
