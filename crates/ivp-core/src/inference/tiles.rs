@@ -37,10 +37,11 @@ pub struct TileShape {
 }
 
 impl TileShape {
-    /// Cells of 16 pixels with 32 pixels of context: the fastest shape whose vectors agree with a
-    /// dense pass within 0.5 px at 99% of the disocclusion pixels on the Blender clips, at
-    /// 320x240 and 1080p (PERFORMANCE.md, "Sparse inference").
-    pub const DEFAULT: TileShape = TileShape { core: 16, margin: 32 };
+    /// Cells of 32 pixels with 32 pixels of context: the fastest shape whose vectors agree with a
+    /// dense pass within 0.5 px of the frame the network sees at 99% of the disocclusion pixels
+    /// on the Blender clips, at 320x240 and at 1080p shrunk by 2 (PERFORMANCE.md, "Choosing the
+    /// tile shape").
+    pub const DEFAULT: TileShape = TileShape { core: 32, margin: 32 };
 
     /// A shape whose core (at least 16) and margin are multiples of [`TILE_ALIGN`].
     pub fn new(core: usize, margin: usize) -> Result<Self, String> {
