@@ -333,8 +333,7 @@ fn differences_to_full(scores: &[Score], dataset: &str) -> Vec<Difference> {
         .filter(|&row| row != "full")
         .filter_map(|row| {
             let this = of(row);
-            let differences: Vec<f64> =
-                this.iter().filter_map(|(seed, v)| full.get(seed).map(|f| v - f)).collect();
+            let differences: Vec<f64> = this.iter().filter_map(|(seed, v)| full.get(seed).map(|f| v - f)).collect();
             if differences.len() < 2 {
                 return None;
             }
@@ -361,7 +360,10 @@ fn differences_markdown(scores: &[Score]) -> String {
         if differences.is_empty() {
             continue;
         }
-        let _ = writeln!(out, "| {dataset}: row - full | D-MSE difference | seeds agreeing | larger than the seed spread |");
+        let _ = writeln!(
+            out,
+            "| {dataset}: row - full | D-MSE difference | seeds agreeing | larger than the seed spread |"
+        );
         let _ = writeln!(out, "|---|---|---|---|");
         for d in differences {
             let verdict = if d.beyond_spread() { "yes" } else { "no" };
@@ -403,21 +405,18 @@ mod tests {
 
     #[test]
     fn differences_are_paired_by_seed_and_judged_against_the_spread() {
-        let scores = [
-            score("full", 0, "g", 400.0),
-            score("full", 1, "g", 500.0),
-            score("full", 2, "g", 450.0),
-            // Worse by 20-40 on every seed, much less than full's spread of 50 across seeds.
-            score("no-depth", 0, "g", 420.0),
-            score("no-depth", 1, "g", 540.0),
-            score("no-depth", 2, "g", 480.0),
-            // Worse by 200 on every seed.
-            score("intensity", 0, "g", 600.0),
-            score("intensity", 1, "g", 700.0),
-            score("intensity", 2, "g", 650.0),
-            // One seed only: no spread, no row.
-            score("no-tg", 0, "g", 900.0),
+        // no-depth is worse by 20-40 on every seed, much less than full's spread of 50 across
+        // seeds; intensity by 200 on every seed; no-tg has one seed only: no spread, no row.
+        let by_seed = [
+            ("full", vec![400.0, 500.0, 450.0]),
+            ("no-depth", vec![420.0, 540.0, 480.0]),
+            ("intensity", vec![600.0, 700.0, 650.0]),
+            ("no-tg", vec![900.0]),
         ];
+        let scores: Vec<Score> = by_seed
+            .into_iter()
+            .flat_map(|(row, values)| values.into_iter().zip(0..).map(move |(v, seed)| score(row, seed, "g", v)))
+            .collect();
         let differences = differences_to_full(&scores, "g");
         let rows: Vec<&str> = differences.iter().map(|d| d.row).collect();
         assert_eq!(rows, ["intensity", "no-depth"]);

@@ -36,10 +36,7 @@ struct Tally {
 
 fn main() -> anyhow::Result<()> {
     let args: Vec<String> = std::env::args().skip(1).collect();
-    anyhow::ensure!(
-        (3..=4).contains(&args.len()),
-        "usage: tile_study MODEL DATA TARGETS [SCALE] (e.g. 6,8,10 auto)"
-    );
+    anyhow::ensure!((3..=4).contains(&args.len()), "usage: tile_study MODEL DATA TARGETS [SCALE] (e.g. 6,8,10 auto)");
     let scale: Scale = args.get(3).map_or("auto", String::as_str).parse().map_err(anyhow::Error::msg)?;
     let (net, _) = ivp_train::checkpoint::load_model(Path::new(&args[0]))?;
     let targets: Vec<usize> = args[2].split(',').map(str::parse).collect::<Result<_, _>>()?;
@@ -71,7 +68,7 @@ fn main() -> anyhow::Result<()> {
             for (coverage, tally) in coverages.iter().zip(&mut tallies) {
                 let model = ModelInfiller::new("ivp", net.clone(), 3).with_coverage(*coverage).with_scale(scale);
                 model.predict(&ctx)?; // warm-up
-                // The faster of two timed runs: the machine is shared.
+                                      // The faster of two timed runs: the machine is shared.
                 let mut fastest = f64::INFINITY;
                 let mut prediction = None;
                 for _ in 0..2 {
