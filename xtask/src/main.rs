@@ -78,7 +78,8 @@ struct SpeedArgs {
     #[arg(long)]
     speed_vs_error: bool,
     /// Trained models, WIDTH=FILE (those whose file is missing are skipped, with a warning).
-    /// Train one with `ivp train --synthetic --width-mult W --out runs/width-W`.
+    /// By default the committed models: width 0.25 from results/ablate/full/seed0, the others
+    /// from results/width/wW (`ivp train --synthetic --width-mult W --out results/width/wW`).
     #[arg(long, value_delimiter = ',', default_values_t = speed_vs_error::default_models())]
     models: Vec<String>,
     /// The 320x240 clips (generated clips stand in when the folder is missing).

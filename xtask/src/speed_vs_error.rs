@@ -23,7 +23,7 @@ const CLASSICAL: [&str; 5] = ["copy", "warp", "fill", "oracle", "telea"];
 /// Iterations of the models' test-time infilling.
 const ITERATIONS: [usize; 3] = [1, 2, 3];
 
-/// The widths swept by default, each from `runs/width-<W>/model.safetensors` when it exists.
+/// The widths swept by default, each from [`model_file`] when it exists.
 pub const DEFAULT_WIDTHS: [&str; 4] = ["0.125", "0.25", "0.5", "1.0"];
 
 /// Seed of the generated clips: far from the training stream's and the ablation's.
@@ -528,9 +528,20 @@ pub fn parse_models(specs: &[String]) -> Result<Vec<(String, PathBuf)>> {
         .collect()
 }
 
-/// The default `--models`: `runs/width-<W>/model.safetensors` for every default width.
+/// The committed model of width `width`, trained with the default recipe and seed 0: the recipe's
+/// own width is the ablation's `full` seed 0; the others are trained with `ivp train --synthetic
+/// --width-mult W --out results/width/wW`.
+pub fn model_file(width: &str) -> String {
+    if width == "0.25" {
+        "results/ablate/full/seed0/model.safetensors".to_string()
+    } else {
+        format!("results/width/w{width}/model.safetensors")
+    }
+}
+
+/// The default `--models`: [`model_file`] for every default width.
 pub fn default_models() -> Vec<String> {
-    DEFAULT_WIDTHS.iter().map(|w| format!("{w}=runs/width-{w}/model.safetensors")).collect()
+    DEFAULT_WIDTHS.iter().map(|w| format!("{w}={}", model_file(w))).collect()
 }
 
 #[cfg(test)]
