@@ -94,13 +94,14 @@ pub struct Tile {
 /// The tiles of a `width` x `height` frame that cover every cell holding a `marked` pixel.
 ///
 /// Each such cell (`core` pixels on a side) needs itself plus `margin` pixels around it. Cells
-/// whose needs overlap or touch form a group. A group is read as one tile, the bounding box of
-/// its needs, unless cutting it between two columns or two rows of cells gives two boxes with
-/// fewer pixels together; each side is then cut again the same way ([`partition`]). Holes are
-/// thin slivers along object edges: a sliver stays one thin box, which saves the margins that
-/// neighbouring cells would read twice, while the slivers of a frame with holes everywhere join
-/// into one group whose box would be the whole frame, and the cuts keep the empty space between
-/// them out. Tiles are in row-major order of their first cell; cores in row-major order.
+/// whose needs overlap or touch form a group. A group is cut in two at the median of its cells
+/// along the longer side of its needs' bounding box, each half is planned the same way, and the
+/// halves' tiles are kept when they read fewer pixels together than the box; otherwise the box is
+/// one tile. Holes are thin slivers along object edges: a sliver stays one thin box, which saves
+/// the margins that neighbouring cells would read twice, while the slivers of a frame with holes
+/// everywhere join into one group whose box would be the whole frame, and the cuts keep the empty
+/// space between them out. Tiles are in row-major order of their first cell; cores in row-major
+/// order.
 pub fn plan_tiles(width: usize, height: usize, marked: &[bool], shape: TileShape) -> Vec<Tile> {
     assert_eq!(marked.len(), width * height, "mask does not match {width}x{height}");
     let (columns, rows) = (width.div_ceil(shape.core), height.div_ceil(shape.core));

@@ -150,7 +150,7 @@ fn size_error(what: &str, w: usize, h: usize, width: usize, height: usize) -> In
 /// so that the whole frame is filled.
 ///
 /// - The background depth threshold of each disocclusion pixel is computed once, on the original
-///   known mask and `warped_depth` ([`background_depth_threshold`]).
+///   known mask and `warped_depth` ([`crate::prior::background_depth_threshold`]).
 /// - Iterations `1..P-1`: predict; read colour and depth at each vector's target over the known
 ///   corners; keep the vector if a corner was found and the depth read is at least the threshold
 ///   (no threshold: keep). Kept pixels become known with the colour and depth read, and their
