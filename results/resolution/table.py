@@ -50,7 +50,10 @@ def main():
              "on 2 cores. The model rows are the `full` runs of `results/ablate` (the default recipe, "
              "one per seed): mean ± sample standard deviation over the seeds. Scale `auto` is 1 at "
              "320x240 and 2 at 1080p (ALGORITHMS.md §6.7). D-MSE / fill compares with `fill` on the "
-             "same frames; TC needs 12-frame clips (the 1080p Blender clip has 6 frames).", ""]
+             "same frames; TC needs 12-frame clips (the 1080p Blender clip has 6 frames). ms/frame is "
+             "`ivp eval`'s wall time on a shared machine (the run of 2026-12-03 overlapped a build "
+             "and a training at its end, factors 3-5): PERFORMANCE.md has timings taken with nothing "
+             "beside them.", ""]
     for key, title in DATASETS:
         files = sorted(glob.glob(os.path.join(HERE, f"scores_{key}_scale-*.json")))
         if not files:

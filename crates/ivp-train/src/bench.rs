@@ -17,7 +17,7 @@ use rand_distr::StandardNormal;
 use serde::Serialize;
 
 use crate::distributed::SingleProcess;
-use crate::train::training_step;
+use crate::train::{training_step, Guide};
 
 /// One benchmark's result: the keys of `torch_reference.py`, plus where the time went.
 #[derive(Clone, Debug, Serialize)]
@@ -109,7 +109,7 @@ pub fn bench_train(case: &TrainCase) -> Result<BenchReport> {
     let inputs = RandomInputs::new(case.batch, case.crop, case.crop, 0.1, 0)?;
     let weights = LossWeights::default();
     let (times, profile) = timed_runs(2, case.runs, case.profile, || {
-        training_step(&net, &mut optimizer, &inputs.net_input(), &inputs.truth, &weights, 0.0, &SingleProcess)?;
+        training_step(&net, &mut optimizer, &inputs.net_input(), &inputs.truth, &weights, Guide::NONE, &SingleProcess)?;
         Ok(())
     })?;
     Ok(report(format!("train b{} crop{}", case.batch, case.crop), &times, case.width_mult, profile))

@@ -60,6 +60,9 @@ pub struct TrainConfig {
     /// variant reads: the temporal prior spread into the holes for `full` and `no-depth`, the
     /// depth-aware `fill` vectors for `no-tg`. See [`GuideSource`].
     pub guide_steps: u64,
+    /// The guide's target: `auto` (what the variant reads, as above) or `fill` (the depth-aware
+    /// `fill` vectors for any vector variant: every variant reads the warped depth).
+    pub guide: String,
     /// Peak learning rate of Adam.
     pub lr: f64,
     /// Steps of linear warm-up from 0 to `lr`.
@@ -94,6 +97,7 @@ impl Default for TrainConfig {
             batch: 16,
             crop: 64,
             guide_steps: 500,
+            guide: "auto".to_string(),
             lr: 1e-3,
             warmup_steps: 100,
             final_lr_fraction: 0.1,
@@ -127,7 +131,7 @@ impl TrainConfig {
     }
 
     pub fn validate(&self) -> Result<()> {
-        self.model()?;
+        self.guide_source()?;
         check_width_mult(self.width_mult).map_err(anyhow::Error::msg)?;
         ensure!(self.steps > 0, "steps must be at least 1");
         ensure!(self.batch > 0, "batch must be at least 1");
@@ -142,6 +146,21 @@ impl TrainConfig {
         ensure!(self.keep_checkpoints > 0, "keep_checkpoints must be at least 1");
         ensure!(self.iterations > 0, "iterations must be at least 1");
         Ok(())
+    }
+
+    /// The target of the guide term (`None` for the variant without vectors).
+    pub fn guide_source(&self) -> Result<Option<GuideSource>> {
+        let variant = self.model()?.variant;
+        match self.guide.as_str() {
+            "auto" => Ok(GuideSource::of(variant)),
+            "fill" => Ok(GuideSource::of(variant).map(|_| GuideSource::DepthFill)),
+            other => bail!("guide must be `auto` or `fill`, got `{other}`"),
+        }
+    }
+
+    /// The guide term of step `step`: its target, weighted 1 fading linearly to 0 at `guide_steps`.
+    pub fn guide_at(&self, step: u64) -> Result<Guide> {
+        Ok(Guide { source: self.guide_source()?, weight: self.guide_weight_at(step) })
     }
 
     /// The weight of the guide term at step `step`: 1 fading linearly to 0 at `guide_steps`.
@@ -269,10 +288,9 @@ pub fn train_on(
         let batch = stream.next_batch()?;
         debug_assert_eq!(batch.step, step);
         optimizer.set_lr(config.lr_at(step));
-        let guide_weight = config.guide_weight_at(step);
-        let loss =
-            training_step(&net, &mut optimizer, &batch_input(&batch), &batch.truth, &weights, guide_weight, group)
-                .with_context(|| format!("training stopped at step {step}; the last good checkpoint is kept"))?;
+        let guide = config.guide_at(step)?;
+        let loss = training_step(&net, &mut optimizer, &batch_input(&batch), &batch.truth, &weights, guide, group)
+            .with_context(|| format!("training stopped at step {step}; the last good checkpoint is kept"))?;
         step += 1;
         window.add(&loss);
         bar.set_position(step);
@@ -377,8 +395,8 @@ fn open_run_folder(
 }
 
 /// One optimisation step on `input` with ground truth `truth`; returns the losses before the update.
-/// `guide_weight` scales the guide term (0 leaves it out); its target is the variant's
-/// [`GuideSource`], so no variant learns through the loss from an input its ablation removes.
+/// `guide` is the guide term's target and weight (0 leaves it out); [`Guide::of`] gives the
+/// variant's own, so that no variant learns through the loss from an input its ablation removes.
 /// A non-finite loss is an error and leaves the parameters untouched.
 ///
 /// In a data-parallel job `input` is this rank's part of the batch: its terms are divided by the
@@ -390,10 +408,11 @@ pub fn training_step(
     input: &NetInput<'_>,
     truth: &Tensor,
     weights: &LossWeights,
-    guide_weight: f64,
+    guide: Guide,
     group: &dyn ProcessGroup,
 ) -> Result<LossValues> {
-    let source = GuideSource::of(net.config().variant).filter(|_| guide_weight > 0.0);
+    let guide_weight = guide.weight;
+    let source = guide.source.filter(|_| guide_weight > 0.0);
     let guide_target = source.map(|source| GuideTarget::new(source, input)).transpose()?;
     let local = LossCounts::of(input.mask)?;
     let guide_count = guide_target.as_ref().map_or(0.0, |g| g.count);
@@ -449,6 +468,23 @@ pub enum GuideSource {
     /// The depth-aware `fill` vectors of the warped depth ([`fill_guide_loss`]): prior-free, for
     /// the variant that reads depth but not the prior (`no-tg`).
     DepthFill,
+}
+
+/// The guide term of one step: its target (`None`: no guide) and its weight.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Guide {
+    pub source: Option<GuideSource>,
+    pub weight: f64,
+}
+
+impl Guide {
+    /// No guide term.
+    pub const NONE: Guide = Guide { source: None, weight: 0.0 };
+
+    /// The guide of `variant` ([`GuideSource::of`]) at `weight`.
+    pub fn of(variant: Variant, weight: f64) -> Self {
+        Self { source: GuideSource::of(variant), weight }
+    }
 }
 
 impl GuideSource {
@@ -665,6 +701,7 @@ mod tests {
             let losses: Vec<LossValues> = [1.0, 0.5, 0.0]
                 .iter()
                 .map(|&guide| {
+                    let guide = Guide::of(Variant::Full, guide);
                     training_step(&net, &mut optimizer, &input, &truth, &LossWeights::default(), guide, group).unwrap()
                 })
                 .collect();
@@ -711,7 +748,9 @@ mod tests {
                 NetInput { prior, warped_depth: &depth, mask: &mask, warped: &warped, last: None, last_warped: None };
             let (net, varmap) = IvpNet::seeded(ModelConfig { variant, width_mult: 0.125 }, 1).unwrap();
             let mut optimizer = Adam::new(named_parameters(&varmap), AdamConfig::default()).unwrap();
-            training_step(&net, &mut optimizer, &input, &warped, &LossWeights::default(), 1.0, &SingleProcess).unwrap()
+            let guide = Guide::of(variant, 1.0);
+            training_step(&net, &mut optimizer, &input, &warped, &LossWeights::default(), guide, &SingleProcess)
+                .unwrap()
         };
         let (prior, other_prior) = (ramp(2, 1.0), ramp(2, -3.0));
         assert_eq!(GuideSource::of(Variant::Intensity), None);
@@ -726,6 +765,26 @@ mod tests {
             }
         }
         assert_eq!(GuideSource::of(Variant::NoTemporalPrior), Some(GuideSource::DepthFill));
+    }
+
+    #[test]
+    fn the_guide_can_be_the_fill_vectors_for_every_vector_variant() {
+        let config = |variant: &str, guide: &str| TrainConfig {
+            variant: variant.to_string(),
+            guide: guide.to_string(),
+            ..TrainConfig::default()
+        };
+        assert_eq!(config("full", "auto").guide_source().unwrap(), Some(GuideSource::TemporalPrior));
+        assert_eq!(config("full", "fill").guide_source().unwrap(), Some(GuideSource::DepthFill));
+        assert_eq!(config("no-depth", "fill").guide_source().unwrap(), Some(GuideSource::DepthFill));
+        assert_eq!(config("intensity", "fill").guide_source().unwrap(), None);
+        let bad = config("full", "prior").validate().unwrap_err().to_string();
+        assert!(bad.contains("`auto` or `fill`"), "{bad}");
+        let guide = config("full", "fill").guide_at(0).unwrap();
+        assert_eq!(guide, Guide { source: Some(GuideSource::DepthFill), weight: 1.0 });
+        // The default recipe's file form is unchanged: `guide` defaults to `auto` when absent.
+        let parsed: TrainConfig = toml::from_str("steps = 10").unwrap();
+        assert_eq!(parsed.guide, "auto");
     }
 
     #[test]
