@@ -151,7 +151,8 @@ pub fn plan_tiles(width: usize, height: usize, marked: &[bool], shape: TileShape
 
     let mut tiles = Vec::new();
     for g in groups {
-        partition(g.iter().map(|&i| core_of(cells[i])).collect(), &need_of, &mut tiles);
+        let mut cores: Vec<Rect> = g.iter().map(|&i| core_of(cells[i])).collect();
+        partition(&mut cores, &need_of, &mut tiles);
     }
     let row_major = |r: &Rect| (r.y, r.x);
     tiles.sort_by_key(|t| row_major(&t.cores[0]));
@@ -161,40 +162,40 @@ pub fn plan_tiles(width: usize, height: usize, marked: &[bool], shape: TileShape
 /// Tiles for `cores` (one group): the cores are cut in two at the median of their positions
 /// along the longer side of their needs' bounding box, each side is planned the same way, and
 /// the two sides' tiles are kept when they read fewer pixels together than the bounding box,
-/// else the box is one tile. Cores are in row-major order within a tile.
+/// else the box is one tile. Cores are in row-major order within a tile. Returns the pixels read.
 ///
 /// A single cut cannot show that a ring of slivers is cheaper as four thin boxes (either side of
 /// any cut still spans the ring), so the sides are planned before they are compared.
-fn partition(mut cores: Vec<Rect>, need_of: &impl Fn(Rect) -> Rect, tiles: &mut Vec<Tile>) -> usize {
+fn partition(cores: &mut [Rect], need_of: &impl Fn(Rect) -> Rect, tiles: &mut Vec<Tile>) -> usize {
     let whole = cores.iter().map(|&c| need_of(c)).reduce(|a, b| a.union(&b)).expect("a group has cores");
-    let one_tile = |mut cores: Vec<Rect>, tiles: &mut Vec<Tile>| {
+    let one_tile = |cores: &[Rect], tiles: &mut Vec<Tile>| {
+        let mut cores = cores.to_vec();
         cores.sort_by_key(|r| (r.y, r.x));
         tiles.push(Tile { input: whole, cores });
         whole.area()
     };
-    // Cut between two distinct positions along the longer side (else the other), nearest the middle.
+    // Cut between two distinct positions along the longer side (else the other), nearest the
+    // middle (the later one on a tie).
     let mut cut = None;
     for along_columns in [whole.width >= whole.height, whole.width < whole.height] {
-        let position = |r: &Rect| if along_columns { r.x } else { r.y };
-        cores.sort_by_key(|r| (position(r), if along_columns { r.y } else { r.x }));
+        let position = |r: &Rect| if along_columns { (r.x, r.y) } else { (r.y, r.x) };
+        cores.sort_by_key(position);
         let middle = cores.len() / 2;
-        let distinct = |k: &usize| position(&cores[k - 1]) != position(&cores[*k]);
-        let nearest = (middle.max(1)..cores.len()).find(distinct).into_iter().chain((1..middle).rev().find(distinct));
-        if let Some(k) = nearest.min_by_key(|k| k.abs_diff(middle)) {
-            cut = Some(k);
+        cut = (1..cores.len())
+            .filter(|&k| position(&cores[k - 1]).0 != position(&cores[k]).0)
+            .min_by_key(|&k| (k.abs_diff(middle), std::cmp::Reverse(k)));
+        if cut.is_some() {
             break;
         }
     }
     let Some(k) = cut else { return one_tile(cores, tiles) };
     let first = tiles.len();
-    let rest = cores.split_off(k);
-    let (left, right) = (cores.clone(), rest.clone());
+    let (left, right) = cores.split_at_mut(k);
     let pixels = partition(left, need_of, tiles) + partition(right, need_of, tiles);
     if pixels < whole.area() {
         return pixels;
     }
     tiles.truncate(first);
-    cores.extend(rest);
     one_tile(cores, tiles)
 }
 
@@ -382,7 +383,6 @@ mod tests {
         assert!(TileShape::new(24, 16).is_err() && TileShape::new(32, 8).is_err() && TileShape::new(0, 0).is_err());
     }
 
-    /// A frame with two hole patches, one touching the right border.
     #[test]
     fn a_ring_of_holes_is_cut_into_its_sides() {
         // The outline of a square: one group of cells whose bounding box is nearly the frame.
@@ -414,6 +414,7 @@ mod tests {
         }
     }
 
+    /// A frame with two hole patches, one touching the right border.
     fn frame(w: usize, h: usize) -> (VectorField, DepthMap, Vec<bool>) {
         let holes: Vec<bool> =
             (0..w * h).map(|i| matches!((i % w, i / w), (20..=27, 30..=60) | (150..=159, 5..=12))).collect();
