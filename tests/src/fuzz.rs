@@ -186,7 +186,7 @@ pub fn write_seeds(corpus: &Path) -> std::io::Result<()> {
     for (i, variant) in
         [ivp_core::nn::model::Variant::Full, ivp_core::nn::model::Variant::Intensity].into_iter().enumerate()
     {
-        let config = ivp_core::nn::model::ModelConfig { variant, width_mult: 0.03125 };
+        let config = ivp_core::nn::model::ModelConfig::new(variant, 0.03125);
         let (_, varmap) = ivp_core::nn::model::IvpNet::seeded(config, 1).map_err(std::io::Error::other)?;
         let path = dir.path().join("m.safetensors");
         ivp_train::checkpoint::save_model(&path, &varmap, &config, Some(7)).map_err(std::io::Error::other)?;

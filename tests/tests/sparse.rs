@@ -20,7 +20,7 @@ const AGREEING_SHARE: f64 = 0.99;
 const VECTOR_TOLERANCE: f32 = 0.5;
 
 fn predict(clip: &SyntheticClip, warp: &Warp, coverage: Coverage, scale: Scale) -> ModelPrediction {
-    let (net, _) = IvpNet::seeded(ModelConfig { variant: Variant::Full, width_mult: 0.125 }, 11).unwrap();
+    let (net, _) = IvpNet::seeded(ModelConfig::new(Variant::Full, 0.125), 11).unwrap();
     let model = ModelInfiller::new("ivp", net.detached(), 3).with_coverage(coverage).with_scale(scale);
     let view =
         |i: usize| FrameView { image: &clip.frames[i].image, depth: &clip.frames[i].depth, pose: &clip.poses[i] };

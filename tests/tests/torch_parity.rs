@@ -63,7 +63,7 @@ fn exported_weights_give_the_same_vectors_in_pytorch() {
     }
     let dir = tempfile::tempdir().unwrap();
     for (variant, width_mult) in [(Variant::Full, 0.25), (Variant::NoTemporalPrior, 0.125), (Variant::Full, 1.0)] {
-        let config = ModelConfig { variant, width_mult };
+        let config = ModelConfig::new(variant, width_mult);
         let (_, varmap) = IvpNet::seeded(config, 11).unwrap();
         let model = dir.path().join(format!("{variant}-{width_mult}.safetensors"));
         save_model(&model, &varmap, &config, None).unwrap();
@@ -131,7 +131,7 @@ fn committed_fixtures_match_a_pytorch_training_step() {
         let mut take = |name: &str| fixture.remove(name).unwrap_or_else(|| panic!("{file}: no tensor `{name}`"));
 
         // The reference's weights, loaded strictly: every parameter present with its shape.
-        let config = ModelConfig { variant, width_mult };
+        let config = ModelConfig::new(variant, width_mult);
         let (net, varmap) = IvpNet::seeded(config, 0).unwrap();
         let parameters = named_parameters(&varmap);
         for (name, var) in &parameters {

@@ -39,7 +39,7 @@ fn main() -> anyhow::Result<()> {
         println!("|---|---|---|---|---|");
     }
     for width_mult in widths {
-        let (_, varmap) = IvpNet::seeded(ModelConfig { variant: Variant::Full, width_mult }, 0)?;
+        let (_, varmap) = IvpNet::seeded(ModelConfig::new(Variant::Full, width_mult), 0)?;
         let count: usize = named_parameters(&varmap).iter().map(|(_, v)| v.elem_count()).sum();
         let values: Vec<f32> = (0..count).map(|i| (i % 1000) as f32 * 1e-3).collect();
         let time = |reduce: &dyn Fn(&mut Vec<f32>)| -> (f64, f64, f64) {

@@ -103,7 +103,7 @@ impl RandomInputs {
 }
 
 pub fn bench_train(case: &TrainCase) -> Result<BenchReport> {
-    let config = ModelConfig { variant: Variant::Full, width_mult: case.width_mult };
+    let config = ModelConfig::new(Variant::Full, case.width_mult);
     let (net, varmap) = IvpNet::seeded(config, 0)?;
     let mut optimizer = Adam::new(named_parameters(&varmap), AdamConfig::default())?;
     let inputs = RandomInputs::new(case.batch, case.crop, case.crop, 0.1, 0)?;
@@ -116,7 +116,7 @@ pub fn bench_train(case: &TrainCase) -> Result<BenchReport> {
 }
 
 pub fn bench_infer(case: &InferCase) -> Result<BenchReport> {
-    let config = ModelConfig { variant: Variant::Full, width_mult: case.width_mult };
+    let config = ModelConfig::new(Variant::Full, case.width_mult);
     // As PyTorch's `no_grad`: no graph is recorded.
     let net = IvpNet::seeded(config, 0)?.0.detached();
     let (ph, pw) = (case.height.div_ceil(16) * 16, case.width.div_ceil(16) * 16);

@@ -26,6 +26,8 @@ pub struct FrameCase {
     /// A trained model; without it, a network of `width_mult` with seeded (untrained) weights.
     pub model: Option<PathBuf>,
     pub width_mult: f64,
+    /// The depth head's width multiplier of the untrained network.
+    pub depth_head_mult: f64,
     pub iterations: usize,
     pub coverage: Coverage,
     /// The scale the model runs at.
@@ -50,6 +52,7 @@ pub struct FrameReport {
     pub height: usize,
     pub width: usize,
     pub width_mult: f64,
+    pub depth_head_mult: f64,
     pub trained: bool,
     pub iterations: usize,
     pub coverage: &'static str,
@@ -81,12 +84,12 @@ pub fn bench_frame(case: &FrameCase) -> Result<FrameReport> {
     let net = match &case.model {
         Some(path) => load_model(path)?.0,
         None => {
-            let config = ModelConfig { variant: Variant::Full, width_mult: case.width_mult };
+            let config = ModelConfig::new(Variant::Full, case.width_mult).with_depth_head_mult(case.depth_head_mult);
             IvpNet::seeded(config, case.seed).context("building the network")?.0.detached()
         }
     };
     ensure!(net.config().variant.predicts_vectors(), "ivp bench frame times the vector variants only");
-    let width_mult = net.config().width_mult;
+    let (width_mult, depth_head_mult) = (net.config().width_mult, net.config().depth_head_mult);
     let model = ModelInfiller::new("ivp", net, case.iterations).with_coverage(case.coverage).with_scale(case.scale);
     let params = SceneParams { width: case.width, height: case.height, frames: FRAMES, ..Default::default() };
     let clip = render_clip(case.seed, &params);
@@ -141,6 +144,7 @@ pub fn bench_frame(case: &FrameCase) -> Result<FrameReport> {
         height: case.height,
         width: case.width,
         width_mult,
+        depth_head_mult,
         trained: case.model.is_some(),
         iterations: case.iterations,
         coverage: if tile_core.is_some() { "sparse" } else { "dense" },

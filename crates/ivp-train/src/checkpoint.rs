@@ -2,7 +2,9 @@
 //!
 //! - A **model file** holds only the network's parameters, under the `state_dict` names of
 //!   `IvpUNet` in `shared/bench/torch_reference.py`, and the configuration in the safetensors
-//!   metadata (`ivp.format`, `ivp.variant`, `ivp.width_mult`, `ivp.version`). See MODEL.md.
+//!   metadata (`ivp.format`, `ivp.variant`, `ivp.width_mult`, `ivp.depth_head_mult`, `ivp.version`;
+//!   files without `ivp.depth_head_mult`, written before it existed, have the paper's depth head).
+//!   See MODEL.md.
 //! - A **checkpoint** adds Adam's moments (`adam.m.NAME`, `adam.v.NAME`) and, in the metadata, the
 //!   step, Adam's step count and the training configuration as JSON: all a bit-identical resume needs
 //!   (the samples of a step are a function of the seed and the step alone).
@@ -11,7 +13,8 @@
 //! flushed): neither a crash nor a power cut leaves half a file or an empty one.
 //!
 //! Reading refuses what cannot be right before anything is built from it: a width multiplier that
-//! is not a multiple of 1/64 in `(0, 4]` ([`check_width_mult`]), encoder widths that differ from
+//! is not a multiple of 1/64 in `(0, 4]` ([`check_width_mult`]) or a depth-head multiplier not a
+//! multiple of 1/16 ([`check_depth_head_mult`]), encoder widths that differ from
 //! the stored tensors' (checked before the network is allocated), and tensors that are not finite
 //! (each error names the tensor and the file). Weights loaded to run or export (`load_model`,
 //! `export_model`) must also stay within [`MAX_ABS_WEIGHT`].
@@ -21,7 +24,7 @@ use std::path::{Path, PathBuf};
 
 use candle_core::{Device, Tensor};
 use candle_nn::{VarBuilder, VarMap};
-use ivp_core::nn::model::{named_parameters, IvpNet, ModelConfig, ENCODER_WIDTHS};
+use ivp_core::nn::model::{named_parameters, IvpNet, ModelConfig, DEPTH_HEAD_WIDTHS, ENCODER_WIDTHS};
 use ivp_core::nn::optim::Adam;
 
 /// Written to `ivp.format`; a file of another format is refused with a clear message.
@@ -32,7 +35,12 @@ pub const CHECKPOINT_FORMAT: &str = "ivp-checkpoint-1";
 /// multiplier) is then a whole number, as `torch_reference.py` builds them.
 pub const WIDTH_MULT_STEP: f64 = 1.0 / 64.0;
 
-/// The largest width multiplier (encoder widths up to 1024), as training and `ivp bench` allow.
+/// Depth-head multipliers are multiples of this: the depth head's widths (16, 32, 16 times the
+/// multiplier) are then whole numbers.
+pub const DEPTH_HEAD_MULT_STEP: f64 = 1.0 / 16.0;
+
+/// The largest width multiplier (encoder widths up to 1024), as training and `ivp bench` allow;
+/// the depth head's multiplier has the same bound.
 pub const MAX_WIDTH_MULT: f64 = 4.0;
 
 /// A parameter beyond this magnitude is not a trained weight: PyTorch's initial bounds are below 1
@@ -42,15 +50,31 @@ pub const MAX_ABS_WEIGHT: f32 = 1e6;
 /// Why a width multiplier cannot be right, if it cannot: it must be a multiple of
 /// [`WIDTH_MULT_STEP`] in `(0, MAX_WIDTH_MULT]`.
 pub fn check_width_mult(m: f64) -> Result<(), String> {
-    let steps = m / WIDTH_MULT_STEP;
+    check_multiplier(m, "width multiplier", "encoder widths", &ENCODER_WIDTHS, WIDTH_MULT_STEP, "1/64")
+}
+
+/// Why a depth-head multiplier cannot be right, if it cannot: it must be a multiple of
+/// [`DEPTH_HEAD_MULT_STEP`] in `(0, MAX_WIDTH_MULT]`.
+pub fn check_depth_head_mult(m: f64) -> Result<(), String> {
+    check_multiplier(m, "depth-head multiplier", "depth-head widths", &DEPTH_HEAD_WIDTHS, DEPTH_HEAD_MULT_STEP, "1/16")
+}
+
+fn check_multiplier(
+    m: f64,
+    what: &str,
+    gives: &str,
+    widths: &[usize],
+    step: f64,
+    step_name: &str,
+) -> Result<(), String> {
+    let steps = m / step;
     if !(m.is_finite() && m > 0.0 && m <= MAX_WIDTH_MULT) {
-        return Err(format!("width multiplier {m} is out of range: it must be in (0, {MAX_WIDTH_MULT}]"));
+        return Err(format!("{what} {m} is out of range: it must be in (0, {MAX_WIDTH_MULT}]"));
     }
     if (steps - steps.round()).abs() > 1e-9 * steps.max(1.0) {
-        let widths: Vec<String> = ENCODER_WIDTHS.iter().map(|&c| format!("{}", c as f64 * m)).collect();
+        let widths: Vec<String> = widths.iter().map(|&c| format!("{}", c as f64 * m)).collect();
         return Err(format!(
-            "width multiplier {m} gives encoder widths [{}] that are not whole numbers: it must be a multiple \
-             of 1/64 ({WIDTH_MULT_STEP})",
+            "{what} {m} gives {gives} [{}] that are not whole numbers: it must be a multiple of {step_name} ({step})",
             widths.join(", ")
         ));
     }
@@ -261,6 +285,7 @@ fn model_metadata(config: &ModelConfig, format: &str, step: Option<u64>) -> Hash
         ("ivp.format".to_string(), format.to_string()),
         ("ivp.variant".to_string(), config.variant.as_str().to_string()),
         ("ivp.width_mult".to_string(), config.width_mult.to_string()),
+        ("ivp.depth_head_mult".to_string(), config.depth_head_mult.to_string()),
         ("ivp.version".to_string(), env!("CARGO_PKG_VERSION").to_string()),
     ]);
     if let Some(step) = step {
@@ -275,7 +300,14 @@ fn model_config_from(path: &Path, metadata: &HashMap<String, String>) -> Result<
     let width_mult: f64 =
         get("ivp.width_mult")?.parse().map_err(|_| invalid(path, "metadata `ivp.width_mult` is not a number"))?;
     check_width_mult(width_mult).map_err(|problem| invalid(path, format!("metadata `ivp.width_mult`: {problem}")))?;
-    Ok(ModelConfig { variant, width_mult })
+    // Files written before the depth head could be scaled have the paper's.
+    let depth_head_mult: f64 = match metadata.get("ivp.depth_head_mult") {
+        Some(m) => m.parse().map_err(|_| invalid(path, "metadata `ivp.depth_head_mult` is not a number"))?,
+        None => 1.0,
+    };
+    check_depth_head_mult(depth_head_mult)
+        .map_err(|problem| invalid(path, format!("metadata `ivp.depth_head_mult`: {problem}")))?;
+    Ok(ModelConfig::new(variant, width_mult).with_depth_head_mult(depth_head_mult))
 }
 
 fn write(
@@ -348,7 +380,7 @@ mod tests {
     use super::*;
     use ivp_core::nn::model::Variant;
 
-    const SMALL: ModelConfig = ModelConfig { variant: Variant::Full, width_mult: 0.125 };
+    const SMALL: ModelConfig = ModelConfig::new(Variant::Full, 0.125);
 
     /// A model file of `SMALL`, rewritten with `edit` applied to its tensors and metadata.
     fn model_file(
@@ -387,6 +419,44 @@ mod tests {
             assert!(check_width_mult(m).is_err(), "{m}");
         }
         assert!(check_width_mult(0.1).unwrap_err().contains("not whole numbers"));
+    }
+
+    #[test]
+    fn depth_head_multipliers_must_give_whole_widths() {
+        for m in [1.0, 0.5, 0.25, 1.0 / 16.0, 4.0] {
+            check_depth_head_mult(m).unwrap();
+        }
+        for m in [0.1, 1.0 / 64.0, 4.5, 0.0, f64::NAN] {
+            assert!(check_depth_head_mult(m).is_err(), "{m}");
+        }
+        assert!(check_depth_head_mult(0.1).unwrap_err().contains("depth-head widths"));
+    }
+
+    #[test]
+    fn files_from_before_the_depth_head_multiplier_have_the_papers_head() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = model_file(dir.path(), |_, meta| {
+            assert!(meta.remove("ivp.depth_head_mult").is_some());
+        });
+        assert_eq!(load_model(&path).unwrap().1.depth_head_mult, 1.0);
+    }
+
+    #[test]
+    fn a_scaled_depth_head_round_trips_and_its_metadata_must_match() {
+        let dir = tempfile::tempdir().unwrap();
+        let config = SMALL.with_depth_head_mult(0.5);
+        let path = dir.path().join("model.safetensors");
+        let (net, varmap) = IvpNet::seeded(config, 3).unwrap();
+        save_model(&path, &varmap, &config, None).unwrap();
+        let (loaded, loaded_config) = load_model(&path).unwrap();
+        assert_eq!(loaded_config, config);
+        assert_eq!(net.config(), loaded.config());
+        let (tensors, mut metadata) = read(&path, MODEL_FORMAT).unwrap();
+        assert_eq!(tensors["depth.c2.weight"].dims(), [16, 8, 7, 7]);
+        metadata.insert("ivp.depth_head_mult".into(), "1".into());
+        write(&path, tensors.into_iter().collect(), metadata).unwrap();
+        let err = load_err(&path);
+        assert!(err.contains("`depth.c1.") && err.contains("has shape"), "{err}");
     }
 
     #[test]

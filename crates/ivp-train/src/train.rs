@@ -31,7 +31,9 @@ use ivp_data::samples::{
 use ivp_data::SceneParams;
 use serde::{Deserialize, Serialize};
 
-use crate::checkpoint::{check_width_mult, load_checkpoint, restore_parameters, save_checkpoint, save_model};
+use crate::checkpoint::{
+    check_depth_head_mult, check_width_mult, load_checkpoint, restore_parameters, save_checkpoint, save_model,
+};
 use crate::distributed::{
     any_rank, batch_part, share_training_state, sum_gradients, sum_over_ranks, ProcessGroup, SingleProcess,
 };
@@ -52,16 +54,18 @@ pub struct TrainConfig {
     /// `full`, `intensity`, `no-tg` or `no-depth`.
     pub variant: String,
     pub width_mult: f64,
+    /// Scales the depth head's widths (16, 32, 16); 1 is the paper's head, whatever `width_mult`.
+    pub depth_head_mult: f64,
     pub steps: u64,
     pub batch: usize,
     pub crop: usize,
     /// Steps during which a guide term pulls the vectors towards a target, fading linearly to
-    /// nothing (0: the paper's losses alone from the start). The target comes from what the
-    /// variant reads: the temporal prior spread into the holes for `full` and `no-depth`, the
-    /// depth-aware `fill` vectors for `no-tg`. See [`GuideSource`].
+    /// nothing (0: the paper's losses alone from the start). See [`GuideSource`].
     pub guide_steps: u64,
-    /// The guide's target: `auto` (what the variant reads, as above) or `fill` (the depth-aware
-    /// `fill` vectors for any vector variant: every variant reads the warped depth).
+    /// The guide's target. `auto`: from what the variant reads, the depth-aware `fill` vectors
+    /// for the variants that read depth (`full`, `no-tg`), the temporal prior spread into the
+    /// holes for `no-depth`. `fill` or `prior` force one target (`prior` only for the variants
+    /// that read the prior; the default recipe before 2026-12-04 guided `full` by the prior).
     pub guide: String,
     /// Peak learning rate of Adam.
     pub lr: f64,
@@ -93,6 +97,7 @@ impl Default for TrainConfig {
             data: None,
             variant: Variant::Full.as_str().to_string(),
             width_mult: 0.25,
+            depth_head_mult: 1.0,
             steps: 5000,
             batch: 16,
             crop: 64,
@@ -127,12 +132,13 @@ impl TrainConfig {
 
     pub fn model(&self) -> Result<ModelConfig> {
         let variant: Variant = self.variant.parse().map_err(anyhow::Error::msg)?;
-        Ok(ModelConfig { variant, width_mult: self.width_mult })
+        Ok(ModelConfig::new(variant, self.width_mult).with_depth_head_mult(self.depth_head_mult))
     }
 
     pub fn validate(&self) -> Result<()> {
         self.guide_source()?;
         check_width_mult(self.width_mult).map_err(anyhow::Error::msg)?;
+        check_depth_head_mult(self.depth_head_mult).map_err(anyhow::Error::msg)?;
         ensure!(self.steps > 0, "steps must be at least 1");
         ensure!(self.batch > 0, "batch must be at least 1");
         ensure!(self.crop >= 16, "crop must be at least 16, got {}", self.crop);
@@ -154,7 +160,11 @@ impl TrainConfig {
         match self.guide.as_str() {
             "auto" => Ok(GuideSource::of(variant)),
             "fill" => Ok(GuideSource::of(variant).map(|_| GuideSource::DepthFill)),
-            other => bail!("guide must be `auto` or `fill`, got `{other}`"),
+            "prior" if variant.predicts_vectors() && !variant.reads_temporal_prior() => {
+                bail!("guide = \"prior\": variant {variant} does not read the temporal prior")
+            }
+            "prior" => Ok(GuideSource::of(variant).map(|_| GuideSource::TemporalPrior)),
+            other => bail!("guide must be `auto`, `fill` or `prior`, got `{other}`"),
         }
     }
 
@@ -463,10 +473,12 @@ pub const GUIDE_RADIUS: usize = 10;
 /// ablation never learns through the loss from what it removes.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum GuideSource {
-    /// The temporal prior spread into the holes ([`guide_loss`]); for the variants that read it.
+    /// The temporal prior spread into the holes ([`guide_loss`]); for the variant that reads the
+    /// prior but not depth (`no-depth`).
     TemporalPrior,
-    /// The depth-aware `fill` vectors of the warped depth ([`fill_guide_loss`]): prior-free, for
-    /// the variant that reads depth but not the prior (`no-tg`).
+    /// The depth-aware `fill` vectors of the warped depth ([`fill_guide_loss`]), for the variants
+    /// that read depth. Over three seeds it trains `full` steadier and better than the prior
+    /// (results/recipe/README.md).
     DepthFill,
 }
 
@@ -488,14 +500,15 @@ impl Guide {
 }
 
 impl GuideSource {
-    /// The guide of `variant`, or `None` for the variant without vectors (`intensity`).
+    /// The guide of `variant`, from its own inputs only: the `fill` vectors if it reads depth,
+    /// else the spread prior; `None` for the variant without vectors (`intensity`).
     pub fn of(variant: Variant) -> Option<Self> {
         if !variant.predicts_vectors() {
             None
-        } else if variant.reads_temporal_prior() {
-            Some(Self::TemporalPrior)
-        } else {
+        } else if variant.reads_depth() {
             Some(Self::DepthFill)
+        } else {
+            Some(Self::TemporalPrior)
         }
     }
 }
@@ -695,7 +708,7 @@ mod tests {
                 last: None,
                 last_warped: None,
             };
-            let (net, varmap) = IvpNet::seeded(ModelConfig { variant: Variant::Full, width_mult: 0.125 }, 5).unwrap();
+            let (net, varmap) = IvpNet::seeded(ModelConfig::new(Variant::Full, 0.125), 5).unwrap();
             let mut optimizer =
                 Adam::new(named_parameters(&varmap), AdamConfig { lr: 1e-3, ..Default::default() }).unwrap();
             let losses: Vec<LossValues> = [1.0, 0.5, 0.0]
@@ -746,7 +759,7 @@ mod tests {
         let step = |variant: Variant, prior: &Tensor| {
             let input =
                 NetInput { prior, warped_depth: &depth, mask: &mask, warped: &warped, last: None, last_warped: None };
-            let (net, varmap) = IvpNet::seeded(ModelConfig { variant, width_mult: 0.125 }, 1).unwrap();
+            let (net, varmap) = IvpNet::seeded(ModelConfig::new(variant, 0.125), 1).unwrap();
             let mut optimizer = Adam::new(named_parameters(&varmap), AdamConfig::default()).unwrap();
             let guide = Guide::of(variant, 1.0);
             training_step(&net, &mut optimizer, &input, &warped, &LossWeights::default(), guide, &SingleProcess)
@@ -757,7 +770,8 @@ mod tests {
         for variant in [Variant::Full, Variant::NoDepth, Variant::NoTemporalPrior] {
             let (one, two) = (step(variant, &prior), step(variant, &other_prior));
             assert!(one.guide > 0.0, "{variant}: guide {}", one.guide);
-            // The prior reaches the guide exactly when the variant reads it.
+            // The prior reaches the guide term (through the vectors, or the target) exactly when
+            // the variant reads it.
             let prior_moves_guide = one.guide != two.guide;
             assert_eq!(prior_moves_guide, variant.reads_temporal_prior(), "{variant}: {one:?} vs {two:?}");
             if !variant.reads_temporal_prior() {
@@ -765,6 +779,8 @@ mod tests {
             }
         }
         assert_eq!(GuideSource::of(Variant::NoTemporalPrior), Some(GuideSource::DepthFill));
+        assert_eq!(GuideSource::of(Variant::Full), Some(GuideSource::DepthFill));
+        assert_eq!(GuideSource::of(Variant::NoDepth), Some(GuideSource::TemporalPrior));
     }
 
     #[test]
@@ -774,12 +790,16 @@ mod tests {
             guide: guide.to_string(),
             ..TrainConfig::default()
         };
-        assert_eq!(config("full", "auto").guide_source().unwrap(), Some(GuideSource::TemporalPrior));
-        assert_eq!(config("full", "fill").guide_source().unwrap(), Some(GuideSource::DepthFill));
+        assert_eq!(config("full", "auto").guide_source().unwrap(), Some(GuideSource::DepthFill));
+        assert_eq!(config("no-depth", "auto").guide_source().unwrap(), Some(GuideSource::TemporalPrior));
+        assert_eq!(config("full", "prior").guide_source().unwrap(), Some(GuideSource::TemporalPrior));
         assert_eq!(config("no-depth", "fill").guide_source().unwrap(), Some(GuideSource::DepthFill));
         assert_eq!(config("intensity", "fill").guide_source().unwrap(), None);
-        let bad = config("full", "prior").validate().unwrap_err().to_string();
-        assert!(bad.contains("`auto` or `fill`"), "{bad}");
+        assert_eq!(config("intensity", "prior").guide_source().unwrap(), None);
+        let bad = config("no-tg", "prior").validate().unwrap_err().to_string();
+        assert!(bad.contains("no-tg does not read the temporal prior"), "{bad}");
+        let bad = config("full", "spread").validate().unwrap_err().to_string();
+        assert!(bad.contains("`auto`, `fill` or `prior`"), "{bad}");
         let guide = config("full", "fill").guide_at(0).unwrap();
         assert_eq!(guide, Guide { source: Some(GuideSource::DepthFill), weight: 1.0 });
         // The default recipe's file form is unchanged: `guide` defaults to `auto` when absent.

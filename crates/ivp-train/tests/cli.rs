@@ -215,7 +215,7 @@ fn a_stray_far_numbered_frame_is_named_at_once() {
 fn eval_refuses_a_model_with_broken_weights() {
     use ivp_core::nn::model::{IvpNet, ModelConfig, Variant};
     let tmp = tempfile::tempdir().unwrap();
-    let config = ModelConfig { variant: Variant::Full, width_mult: 0.125 };
+    let config = ModelConfig::new(Variant::Full, 0.125);
     let (_, varmap) = IvpNet::seeded(config, 1).unwrap();
     let model = tmp.path().join("broken.safetensors");
     let vars = varmap.data().lock().unwrap();
@@ -411,4 +411,25 @@ fn train_export_eval_infer_and_upsample_from_the_command_line() {
     let out = ivp(&["infer", "--clip", s(&clip), "--model", s(&config), "--target", "6", "--out", s(&infer)]);
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains(s(&config)));
+}
+
+/// A network with a narrower depth head trains, and its model file says so and runs.
+#[test]
+fn a_narrower_depth_head_trains_and_its_model_runs() {
+    let dir = tempfile::tempdir().unwrap();
+    let run = dir.path().join("run");
+    let config = dir.path().join("tiny.toml");
+    std::fs::write(&config, "width_mult = 0.125\nsteps = 1\nbatch = 2\ncrop = 32\nvalidation_samples = 2\n").unwrap();
+    let stdout = ok(&["train", "--synthetic", "--config", s(&config), "--depth-head-mult", "0.5", "--out", s(&run)]);
+    assert!(stdout.contains("training full (width 0.125, depth head 0.5)"), "{stdout}");
+    let model = run.join("model.safetensors");
+    let (_, loaded) = ivp_train::checkpoint::load_model(&model).unwrap();
+    assert_eq!((loaded.width_mult, loaded.depth_head_mult), (0.125, 0.5));
+    let clip = blender_dev().join("clip_000");
+    let table = ok(&["eval", "--data", s(&clip), "--methods", "fill", "--model", s(&model), "--targets", "6"]);
+    assert!(table.contains("| ivp "), "{table}");
+
+    let out = ivp(&["train", "--synthetic", "--depth-head-mult", "0.3", "--out", s(&dir.path().join("bad"))]);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && stderr.contains("depth-head multiplier 0.3"), "{stderr}");
 }

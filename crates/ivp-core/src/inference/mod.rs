@@ -269,7 +269,7 @@ mod tests {
 
     #[test]
     fn the_network_predicts_vectors_only_on_holes_and_fills_every_hole() {
-        let (net, _) = IvpNet::seeded(ModelConfig { variant: Variant::Full, width_mult: 0.125 }, 1).unwrap();
+        let (net, _) = IvpNet::seeded(ModelConfig::new(Variant::Full, 0.125), 1).unwrap();
         let (w, h) = (23, 17);
         let classes: Vec<PixelClass> = (0..w * h)
             .map(|i| match (i % w, i / w) {
@@ -315,7 +315,7 @@ mod tests {
 
     #[test]
     fn extreme_depths_and_all_hole_frames_give_finite_images() {
-        let (net, _) = IvpNet::seeded(ModelConfig { variant: Variant::Full, width_mult: 0.125 }, 2).unwrap();
+        let (net, _) = IvpNet::seeded(ModelConfig::new(Variant::Full, 0.125), 2).unwrap();
         let (w, h) = (19, 13);
         let prior = VectorField::zeros(w, h);
         for (label, depth_value, hole_every) in [
@@ -385,7 +385,7 @@ mod tests {
 
     #[test]
     fn an_intensity_network_with_nan_weights_is_an_error() {
-        let (net, varmap) = IvpNet::seeded(ModelConfig { variant: Variant::Intensity, width_mult: 0.125 }, 4).unwrap();
+        let (net, varmap) = IvpNet::seeded(ModelConfig::new(Variant::Intensity, 0.125), 4).unwrap();
         for var in varmap.all_vars() {
             var.set(&Tensor::full(f32::NAN, var.shape(), &Device::Cpu).unwrap()).unwrap();
         }
@@ -402,7 +402,7 @@ mod tests {
         for (variant, reads_prior) in
             [(Variant::Full, true), (Variant::NoDepth, true), (Variant::NoTemporalPrior, false)]
         {
-            let (net, _) = IvpNet::seeded(ModelConfig { variant, width_mult: 0.125 }, 3).unwrap();
+            let (net, _) = IvpNet::seeded(ModelConfig::new(variant, 0.125), 3).unwrap();
             let model = ModelInfiller::new("ivp", net, 3);
             let a = model.predict(&with).unwrap();
             let b = model.predict(&without).unwrap();

@@ -96,7 +96,7 @@ impl<P: VectorPredictor> VectorPredictor for ScaledPredictor<P> {
             return self.inner.predict(prior, depth, holes);
         }
         let (w, h) = (depth.width(), depth.height());
-        let coarse_holes = blocks_with(w, h, s, |i| holes[i]);
+        let coarse_holes = blocks_with(w, h, s, holes, true);
         // The network saw no depth and no prior on holes in training.
         let mut coarse_depth = shrink_depth(depth, s);
         let mut coarse_prior = shrink_vectors(prior, s);
@@ -131,7 +131,7 @@ pub fn shrunk_temporal_prior(ctx: &InfillContext<'_>, factor: usize) -> Option<V
     let (w, h) = (holes.width(), holes.height());
     let known = holes.known();
     // A block is known when all its pixels are (as in ScaledPredictor, where any hole makes a hole).
-    let coarse_known: Vec<bool> = blocks_with(w, h, s, |i| !known[i]).into_iter().map(|hole| !hole).collect();
+    let coarse_known: Vec<bool> = blocks_with(w, h, s, &known, false).into_iter().map(|hole| !hole).collect();
     let k = shrink_intrinsics(ctx.intrinsics, s);
     let coarse = target_prior(&view_b, &view_n, ctx.target_pose, &k, &coarse_known).prior;
     Some(grow_vectors(&coarse, s, w, h, &known))
@@ -143,9 +143,9 @@ fn grow_vectors(coarse: &VectorField, s: usize, w: usize, h: usize, at: &[bool])
     let grown = s as f32;
     let mut field = VectorField::zeros(w, h);
     field.pixels_mut().par_chunks_mut(w.max(1)).enumerate().for_each(|(v, row)| {
-        for (u, out) in row.iter_mut().enumerate() {
-            if at[v * w + u] {
-                let [x, y] = coarse.get(u / s, v / s);
+        let marks = row.chunks_mut(s).zip(at[v * w..(v + 1) * w].chunks(s));
+        for ((out, at), &[x, y]) in marks.zip(coarse.row(v / s)) {
+            for (out, _) in out.iter_mut().zip(at).filter(|(_, &at)| at) {
                 *out = [x * grown, y * grown];
             }
         }
@@ -216,21 +216,24 @@ fn shrink_vectors(field: &VectorField, s: usize) -> VectorField {
 }
 
 /// For each block of `s x s` pixels of a `w x h` frame, whether any of its pixels (row-major
-/// index `i`) is `marked`.
-fn blocks_with(w: usize, h: usize, s: usize, marked: impl Fn(usize) -> bool + Sync) -> Vec<bool> {
+/// in `mask`) is `value`.
+fn blocks_with(w: usize, h: usize, s: usize, mask: &[bool], value: bool) -> Vec<bool> {
     let cw = w.div_ceil(s);
-    (0..cw * h.div_ceil(s))
-        .into_par_iter()
-        .map(|c| {
-            let (cu, cv) = (c % cw, c / cw);
-            (cv * s..((cv + 1) * s).min(h)).any(|v| (cu * s..((cu + 1) * s).min(w)).any(|u| marked(v * w + u)))
-        })
-        .collect()
+    let mut out = vec![false; cw * h.div_ceil(s)];
+    out.par_chunks_mut(cw.max(1)).enumerate().for_each(|(cv, blocks)| {
+        for row in mask[cv * s * w..((cv + 1) * s).min(h) * w].chunks(w) {
+            for (block, pixels) in blocks.iter_mut().zip(row.chunks(s)) {
+                *block |= pixels.contains(&value);
+            }
+        }
+    });
+    out
 }
 
 /// `image` shrunk by blocks of `s x s`: each block's pixels are folded into an accumulator by
-/// `add`, which `finish` turns into the block's value.
-fn shrink_blocks<const C: usize, A: Default>(
+/// `add`, which `finish` turns into the block's value. One row of blocks at a time, reading the
+/// frame's rows front to back (the frame is tens of megabytes: this stage runs at memory speed).
+fn shrink_blocks<const C: usize, A: Default + Clone + Send>(
     image: &Image<C>,
     s: usize,
     add: impl Fn(&mut A, [f32; C]) + Sync,
@@ -239,12 +242,14 @@ fn shrink_blocks<const C: usize, A: Default>(
     let (w, h) = (image.width(), image.height());
     let (cw, ch) = (w.div_ceil(s), h.div_ceil(s));
     let mut out = Image::zeros(cw, ch);
-    out.pixels_mut().par_chunks_mut(cw.max(1)).enumerate().for_each(|(cv, row)| {
-        for (cu, cell) in row.iter_mut().enumerate() {
-            let mut acc = A::default();
-            for v in cv * s..((cv + 1) * s).min(h) {
-                image.row(v)[cu * s..((cu + 1) * s).min(w)].iter().for_each(|&p| add(&mut acc, p));
+    out.pixels_mut().par_chunks_mut(cw.max(1)).enumerate().for_each(|(cv, cells)| {
+        let mut accumulators = vec![A::default(); cw];
+        for v in cv * s..((cv + 1) * s).min(h) {
+            for (acc, pixels) in accumulators.iter_mut().zip(image.row(v).chunks(s)) {
+                pixels.iter().for_each(|&p| add(acc, p));
             }
+        }
+        for (cell, acc) in cells.iter_mut().zip(accumulators) {
             *cell = finish(acc);
         }
     });
@@ -395,7 +400,7 @@ mod tests {
     #[test]
     fn a_network_shrunk_to_a_few_pixels_still_fills_every_hole() {
         use crate::nn::model::{IvpNet, ModelConfig, Variant};
-        let (net, _) = IvpNet::seeded(ModelConfig { variant: Variant::Full, width_mult: 0.125 }, 5).unwrap();
+        let (net, _) = IvpNet::seeded(ModelConfig::new(Variant::Full, 0.125), 5).unwrap();
         // 37 x 23 pixels at factor 16: 3 x 2 blocks, one of them holding the whole hole.
         let (w, h) = (37, 23);
         let holes: Vec<bool> = (0..w * h).map(|i| (10..14).contains(&(i % w)) && (5..9).contains(&(i / w))).collect();

@@ -441,7 +441,7 @@ mod tests {
     /// A network whose weights are all NaN: every prediction must be refused, dense or tiled.
     #[test]
     fn a_network_with_nan_weights_is_refused_dense_and_tiled() {
-        let (net, varmap) = IvpNet::seeded(ModelConfig { variant: Variant::Full, width_mult: 0.125 }, 5).unwrap();
+        let (net, varmap) = IvpNet::seeded(ModelConfig::new(Variant::Full, 0.125), 5).unwrap();
         for var in varmap.all_vars() {
             let nan = Tensor::full(f32::NAN, var.shape(), &Device::Cpu).unwrap();
             var.set(&nan).unwrap();
@@ -458,7 +458,7 @@ mod tests {
 
     #[test]
     fn tiles_with_a_margin_beyond_the_receptive_field_match_a_dense_pass() {
-        let (net, _) = IvpNet::seeded(ModelConfig { variant: Variant::Full, width_mult: 0.125 }, 5).unwrap();
+        let (net, _) = IvpNet::seeded(ModelConfig::new(Variant::Full, 0.125), 5).unwrap();
         let (w, h) = (480, 320);
         let (prior, depth, holes) = frame(w, h);
         let dense = net.predict(&prior, &depth, &holes).unwrap();
@@ -479,7 +479,7 @@ mod tests {
 
     #[test]
     fn all_hole_frames_run_densely_and_results_do_not_depend_on_threads() {
-        let (net, _) = IvpNet::seeded(ModelConfig { variant: Variant::Full, width_mult: 0.125 }, 6).unwrap();
+        let (net, _) = IvpNet::seeded(ModelConfig::new(Variant::Full, 0.125), 6).unwrap();
         let (w, h) = (96, 80);
         let (prior, depth, _) = frame(w, h);
         let all = vec![true; w * h];
@@ -500,7 +500,7 @@ mod tests {
 
     #[test]
     fn the_intensity_variant_is_refused() {
-        let (net, _) = IvpNet::seeded(ModelConfig { variant: Variant::Intensity, width_mult: 0.125 }, 1).unwrap();
+        let (net, _) = IvpNet::seeded(ModelConfig::new(Variant::Intensity, 0.125), 1).unwrap();
         let (prior, depth, holes) = frame(176, 96);
         assert!(TiledPredictor::new(&net, TileShape::DEFAULT).predict(&prior, &depth, &holes).is_err());
     }

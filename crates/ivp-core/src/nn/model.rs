@@ -6,14 +6,17 @@
 //!
 //! | layer | input | output | kernel | stride |
 //! |---|---|---|---|---|
-//! | depth.c1 | warped depth (1) | 16 | 7 | 2 |
-//! | depth.c2 | 16 | 32 | 7 | 2 |
-//! | depth.c3 | bilinear x2 of c2 (32) | 16 | 7 | 1 |
-//! | depth.c4 | bilinear to input size (16) | 1, sigmoid | 7 | 1 |
+//! | depth.c1 | warped depth (1) | 16 h | 7 | 2 |
+//! | depth.c2 | 16 h | 32 h | 7 | 2 |
+//! | depth.c3 | bilinear x2 of c2 (32 h) | 16 h | 7 | 1 |
+//! | depth.c4 | bilinear to input size (16 h) | 1, sigmoid | 7 | 1 |
 //! | e1 | prior (2) + depth head (1) | 64 m | 7 | 1 |
 //! | e2 .. e5 | | 128 m, 256 m, 256 m, 256 m | 5, 3, 3, 3 | 2 |
 //! | d6 .. d8 | nearest x2 of the last + skip e4, e3, e2 | 256 m, 128 m, 64 m | 3 | 1 |
 //! | d9 | nearest x2 of d8 + skip e1 | 2 (vectors, no ReLU) | 3 | 1 |
+//!
+//! `m` is the width multiplier and `h` the depth head's (1, the paper's, unless a model asks
+//! otherwise: at `m` = 0.25 the fixed head is 39% of the multiply-adds).
 //!
 //! The intensity-prediction ablation keeps this shape but reads `f_n`, `f^w_n`, the depth head's
 //! output and `f^w_{n+1}` (10 channels) and ends in 3 channels through a sigmoid: RGB for the holes.
@@ -31,6 +34,9 @@ use crate::nn::ops::{conv2d, conv2d_relu, sample_bilinear, upsample_bilinear_to,
 
 /// The encoder widths at width multiplier 1 (the paper's).
 pub const ENCODER_WIDTHS: [usize; 5] = [64, 128, 256, 256, 256];
+
+/// The output widths of the depth head's `c1 .. c3` at depth-head multiplier 1 (the paper's).
+pub const DEPTH_HEAD_WIDTHS: [usize; 3] = [16, 32, 16];
 
 /// What the network predicts and from what (ALGORITHMS.md §6.1 and the paper's ablations).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
@@ -69,7 +75,8 @@ impl Variant {
         matches!(self, Variant::Full | Variant::NoDepth)
     }
 
-    fn has_depth_head(self) -> bool {
+    /// True for the variants whose input holds the normalised warped depth (all but `no-depth`).
+    pub fn reads_depth(self) -> bool {
         self != Variant::NoDepth
     }
 
@@ -113,19 +120,51 @@ pub struct ModelConfig {
     pub variant: Variant,
     /// Scales the encoder widths (64, 128, 256, 256, 256) and the decoder with them; 1 = the paper.
     pub width_mult: f64,
+    /// Scales the depth head's widths (16, 32, 16); 1 = the paper, whatever `width_mult` is.
+    pub depth_head_mult: f64,
 }
 
 impl Default for ModelConfig {
     fn default() -> Self {
-        Self { variant: Variant::Full, width_mult: 1.0 }
+        Self::new(Variant::Full, 1.0)
     }
 }
 
 impl ModelConfig {
+    /// `variant` at width multiplier `width_mult`, with the paper's depth head.
+    pub const fn new(variant: Variant, width_mult: f64) -> Self {
+        Self { variant, width_mult, depth_head_mult: 1.0 }
+    }
+
+    /// The same network with the depth head's widths scaled by `m`.
+    pub const fn with_depth_head_mult(self, m: f64) -> Self {
+        Self { depth_head_mult: m, ..self }
+    }
+
     /// The five encoder widths, as `torch_reference.py` computes them.
     pub fn encoder_widths(&self) -> [usize; 5] {
-        ENCODER_WIDTHS.map(|c| ((c as f64 * self.width_mult).round() as usize).max(1))
+        ENCODER_WIDTHS.map(|c| scaled_width(c, self.width_mult))
     }
+
+    /// The output widths of the depth head's `c1 .. c3`.
+    pub fn depth_head_widths(&self) -> [usize; 3] {
+        DEPTH_HEAD_WIDTHS.map(|c| scaled_width(c, self.depth_head_mult))
+    }
+}
+
+/// `full (width 0.25)`, with `, depth head 0.5` when the head is not the paper's.
+impl fmt::Display for ModelConfig {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{} (width {}", self.variant, self.width_mult)?;
+        if self.depth_head_mult != 1.0 {
+            write!(f, ", depth head {}", self.depth_head_mult)?;
+        }
+        f.write_str(")")
+    }
+}
+
+fn scaled_width(c: usize, m: f64) -> usize {
+    ((c as f64 * m).round() as usize).max(1)
 }
 
 /// A 2-D convolution with bias and zero padding of `kernel / 2`, as `nn.Conv2d(.., padding=k//2)`.
@@ -168,12 +207,13 @@ pub struct DepthHead {
 }
 
 impl DepthHead {
-    pub fn new(vb: VarBuilder) -> Result<Self> {
+    /// A head whose `c1 .. c3` have the output widths `c`.
+    pub fn new(vb: VarBuilder, c: [usize; 3]) -> Result<Self> {
         Ok(Self {
-            c1: Conv::new(vb.pp("c1"), 1, 16, 7, 2)?,
-            c2: Conv::new(vb.pp("c2"), 16, 32, 7, 2)?,
-            c3: Conv::new(vb.pp("c3"), 32, 16, 7, 1)?,
-            c4: Conv::new(vb.pp("c4"), 16, 1, 7, 1)?,
+            c1: Conv::new(vb.pp("c1"), 1, c[0], 7, 2)?,
+            c2: Conv::new(vb.pp("c2"), c[0], c[1], 7, 2)?,
+            c3: Conv::new(vb.pp("c3"), c[1], c[2], 7, 1)?,
+            c4: Conv::new(vb.pp("c4"), c[2], 1, 7, 1)?,
         })
     }
 
@@ -238,7 +278,10 @@ impl IvpNet {
         let c = config.encoder_widths();
         Ok(Self {
             config,
-            depth: variant.has_depth_head().then(|| DepthHead::new(vb.pp("depth"))).transpose()?,
+            depth: variant
+                .reads_depth()
+                .then(|| DepthHead::new(vb.pp("depth"), config.depth_head_widths()))
+                .transpose()?,
             e1: Conv::new(vb.pp("e1"), variant.input_channels(), c[0], 7, 1)?,
             e2: Conv::new(vb.pp("e2"), c[0], c[1], 5, 2)?,
             e3: Conv::new(vb.pp("e3"), c[1], c[2], 3, 2)?,
@@ -434,7 +477,7 @@ mod tests {
 
     #[test]
     fn initialisation_is_seeded_and_within_pytorch_bounds() {
-        let cfg = ModelConfig { variant: Variant::Full, width_mult: 0.25 };
+        let cfg = ModelConfig::new(Variant::Full, 0.25);
         let flat = |vm: &VarMap| -> Vec<Vec<f32>> {
             named_parameters(vm).iter().map(|(_, v)| v.flatten_all().unwrap().to_vec1().unwrap()).collect()
         };
@@ -461,16 +504,38 @@ mod tests {
 
     #[test]
     fn widths_follow_the_multiplier() {
-        let cfg = |m| ModelConfig { variant: Variant::Full, width_mult: m };
+        let cfg = |m| ModelConfig::new(Variant::Full, m);
         assert_eq!(cfg(1.0).encoder_widths(), [64, 128, 256, 256, 256]);
         assert_eq!(cfg(0.25).encoder_widths(), [16, 32, 64, 64, 64]);
         assert_eq!(cfg(0.125).encoder_widths(), [8, 16, 32, 32, 32]);
     }
 
     #[test]
+    fn the_depth_head_scales_with_its_own_multiplier() {
+        let paper = ModelConfig::new(Variant::Full, 0.125);
+        assert_eq!(paper.depth_head_widths(), [16, 32, 16]);
+        let half = paper.with_depth_head_mult(0.5);
+        assert_eq!(half.depth_head_widths(), [8, 16, 8]);
+        assert_eq!(half.encoder_widths(), paper.encoder_widths());
+        assert_eq!(
+            (paper.to_string(), half.to_string()),
+            ("full (width 0.125)".into(), "full (width 0.125, depth head 0.5)".into())
+        );
+        let (net, varmap) = IvpNet::seeded(half, 2).unwrap();
+        let shape = |name: &str| {
+            named_parameters(&varmap).into_iter().find(|(n, _)| n == name).map(|(_, v)| v.dims().to_vec()).unwrap()
+        };
+        assert_eq!(shape("depth.c1.weight"), [8, 1, 7, 7]);
+        assert_eq!(shape("depth.c3.weight"), [8, 16, 7, 7]);
+        assert_eq!(shape("depth.c4.weight"), [1, 8, 7, 7]);
+        let out = run(&net, &inputs(1, 19, 23, 6));
+        assert_eq!(out.vectors.unwrap().dims(), [1, 2, 19, 23]);
+    }
+
+    #[test]
     fn every_variant_runs_on_odd_sizes_and_masks_its_output() {
         for variant in Variant::ALL {
-            let (net, varmap) = IvpNet::seeded(ModelConfig { variant, width_mult: 0.125 }, 3).unwrap();
+            let (net, varmap) = IvpNet::seeded(ModelConfig::new(variant, 0.125), 3).unwrap();
             if variant == Variant::NoDepth {
                 assert!(named_parameters(&varmap).iter().all(|(n, _)| !n.starts_with("depth.")));
             }
@@ -497,7 +562,7 @@ mod tests {
     #[test]
     fn no_tg_ignores_the_prior_and_full_does_not() {
         let run_with_prior = |variant, prior_scale: f64| {
-            let (net, _) = IvpNet::seeded(ModelConfig { variant, width_mult: 0.125 }, 5).unwrap();
+            let (net, _) = IvpNet::seeded(ModelConfig::new(variant, 0.125), 5).unwrap();
             let mut t = inputs(1, 16, 16, 2);
             t[0] = (&t[0] * prior_scale).unwrap();
             crate::nn::ops::test_util::flat(&run(&net, &t).vectors.unwrap())
@@ -508,7 +573,7 @@ mod tests {
 
     #[test]
     fn a_detached_network_computes_the_same_without_recording_a_graph() {
-        let (net, _) = IvpNet::seeded(ModelConfig { variant: Variant::Full, width_mult: 0.125 }, 4).unwrap();
+        let (net, _) = IvpNet::seeded(ModelConfig::new(Variant::Full, 0.125), 4).unwrap();
         let t = inputs(1, 21, 18, 3);
         let (a, b) = (run(&net, &t), run(&net.detached(), &t));
         assert!(a.frame.track_op() && !b.frame.track_op());
@@ -517,7 +582,7 @@ mod tests {
 
     #[test]
     fn gradients_reach_every_parameter() {
-        let (net, varmap) = IvpNet::seeded(ModelConfig { variant: Variant::Full, width_mult: 0.125 }, 9).unwrap();
+        let (net, varmap) = IvpNet::seeded(ModelConfig::new(Variant::Full, 0.125), 9).unwrap();
         let t = inputs(2, 24, 19, 4);
         let out = run(&net, &t);
         let loss = out.frame.sqr().unwrap().sum_all().unwrap();

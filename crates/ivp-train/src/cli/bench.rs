@@ -8,6 +8,7 @@ use std::path::PathBuf;
 
 use crate::bench::{bench_infer, bench_train, InferCase, TrainCase};
 use crate::bench_frame::{bench_frame, FrameCase};
+use crate::checkpoint::check_depth_head_mult;
 use crate::cli::CoverageArgs;
 
 #[derive(Subcommand)]
@@ -63,6 +64,9 @@ pub enum BenchCommand {
         /// Width multiplier of the untrained network (the recipe's is 0.25).
         #[arg(long, default_value_t = 0.25)]
         width_mult: f64,
+        /// Width multiplier of the untrained network's depth head (1 = the paper's).
+        #[arg(long, default_value_t = 1.0, conflicts_with = "model")]
+        depth_head_mult: f64,
         /// Iterations of the test-time infilling (ALGORITHMS.md §6.5).
         #[arg(long, default_value_t = ivp_core::infill::DEFAULT_ITERATIONS)]
         iterations: usize,
@@ -89,14 +93,16 @@ pub fn run_bench(command: BenchCommand) -> Result<()> {
             ensure!(height >= 16 && width >= 16 && runs > 0, "--height, --width must be >= 16 and --runs >= 1");
             bench_infer(&InferCase { height, width, runs, width_mult, profile })?
         }
-        BenchCommand::Frame { height, width, model, width_mult, iterations, runs, seed, coverage } => {
+        BenchCommand::Frame { height, width, model, width_mult, depth_head_mult, iterations, runs, seed, coverage } => {
             ensure_width_mult(width_mult)?;
+            check_depth_head_mult(depth_head_mult).map_err(anyhow::Error::msg)?;
             ensure!(height >= 16 && width >= 16, "--height and --width must be at least 16");
             let case = FrameCase {
                 height,
                 width,
                 model,
                 width_mult,
+                depth_head_mult,
                 iterations,
                 coverage: coverage.coverage()?,
                 scale: coverage.scale,

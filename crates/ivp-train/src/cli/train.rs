@@ -30,6 +30,10 @@ pub struct TrainArgs {
     /// Width multiplier of the U-Net: 1 = the paper's widths (64 ... 256); recipe: 0.25.
     #[arg(long)]
     width_mult: Option<f64>,
+    /// Width multiplier of the depth head: 1 = the paper's widths (16, 32, 16) at any
+    /// --width-mult; 0.5 makes the network cheaper per pixel (recipe: 1).
+    #[arg(long)]
+    depth_head_mult: Option<f64>,
     /// Training steps (recipe: 5000, about 21 minutes on 2 cores).
     #[arg(long)]
     steps: Option<u64>,
@@ -123,9 +127,8 @@ fn run_train_on(group: &dyn ProcessGroup, args: TrainArgs, progress: bool) -> Re
         n => format!(" on {n} ranks"),
     };
     println!(
-        "training {} (width {}) on {} for {} steps of {} crops of {}x{}{ranks} -> {}",
-        config.variant,
-        config.width_mult,
+        "training {} on {} for {} steps of {} crops of {}x{}{ranks} -> {}",
+        config.model()?,
         config.data.as_ref().map_or("generated scenes".to_string(), |d| d.display().to_string()),
         config.steps,
         config.batch,
@@ -180,7 +183,7 @@ fn train_config(args: &TrainArgs) -> Result<TrainConfig> {
     macro_rules! set {
         ($($field:ident),*) => {$(if let Some(v) = args.$field.clone() { config.$field = v; })*};
     }
-    set!(variant, width_mult, steps, batch, crop, lr, seed, checkpoint_every, validate_every);
+    set!(variant, width_mult, depth_head_mult, steps, batch, crop, lr, seed, checkpoint_every, validate_every);
     config.validate()?;
     Ok(config)
 }
@@ -232,6 +235,6 @@ pub fn run_demo(args: DemoArgs, progress: bool) -> Result<()> {
 
 pub fn run_export(args: ExportArgs) -> Result<()> {
     let config = export_model(&args.checkpoint, &args.out)?;
-    println!("exported {} (width {}) to {}", config.variant, config.width_mult, args.out.display());
+    println!("exported {config} to {}", args.out.display());
     Ok(())
 }
