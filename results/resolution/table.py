@@ -48,12 +48,14 @@ def main():
              "Made with `cargo build --release -p ivp-train && results/resolution/run.sh && "
              "python3 results/resolution/table.py` (the scores of `run.sh`, this table by `table.py`), "
              "on 2 cores. The model rows are the `full` runs of `results/ablate` (the default recipe, "
-             "one per seed): mean ± sample standard deviation over the seeds. Scale `auto` is 1 at "
+             "one per seed; since 2026-12-04 those trained with the fill guide, the default; the "
+             "prior-guided runs before them are in results/recipe/prior-guide): mean ± sample "
+             "standard deviation over the seeds. Scale `auto` is 1 at "
              "320x240 and 2 at 1080p (ALGORITHMS.md §6.7). D-MSE / fill compares with `fill` on the "
              "same frames; TC needs 12-frame clips (the 1080p Blender clip has 6 frames). ms/frame is "
-             "`ivp eval`'s wall time on a shared machine (the run of 2026-12-03 overlapped a build "
-             "and a training at its end, factors 3-5): PERFORMANCE.md has timings taken with nothing "
-             "beside them.", ""]
+             "`ivp eval`'s wall time (the run of 2026-12-04, binary of commit 9845b45, which made the fill "
+             "guide the default, ran with nothing beside it; the machine is shared, so expect 10-20% "
+             "between runs): PERFORMANCE.md splits the time by stage.", ""]
     for key, title in DATASETS:
         files = sorted(glob.glob(os.path.join(HERE, f"scores_{key}_scale-*.json")))
         if not files:
