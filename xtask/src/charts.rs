@@ -9,7 +9,7 @@ use anyhow::{anyhow, Context, Result};
 use ivp_plot::plotters::coord::Shift;
 use ivp_plot::plotters::prelude::*;
 use ivp_plot::plotters::style::text_anchor::{HPos, Pos, VPos};
-use ivp_plot::{colour, draw_legend, house_style, register_font, tick_label, Axis, LegendEntry, Mark, FONT};
+use ivp_plot::{colour, draw_legend, house_style, register_font, tick_label, Axis, LegendEntry, Mark, Stroke, FONT};
 
 /// Widths of the legend columns: the bar chart's names are short, the speed chart's are not.
 const BAR_LEGEND_WIDTH: u32 = 200;
@@ -143,9 +143,8 @@ pub struct TimedPoint {
 pub struct TimedSeries {
     pub name: String,
     pub colour: RGBColor,
-    /// Joined by a line (the iterations of a model), dashed for dense inference; markers of a dashed
-    /// series are hollow.
-    pub line: Option<bool>,
+    /// Joined by a line (the iterations of a model); markers are hollow unless the line is solid.
+    pub line: Option<Stroke>,
     pub points: Vec<TimedPoint>,
 }
 
@@ -190,7 +189,7 @@ fn timed_legend(panels: &[TimedPanel]) -> Vec<LegendEntry> {
             continue;
         }
         let mark = match series.line {
-            Some(dashed) => Mark::Line { dashed, marker: true },
+            Some(stroke) => Mark::Line { stroke, marker: true },
             None => Mark::Point { filled: true },
         };
         entries.push(LegendEntry { label: series.name.clone(), colour: series.colour, mark });
@@ -237,16 +236,18 @@ fn draw_timed_panel(area: &Area<'_>, panel: &TimedPanel, x_label: &str, y_label:
     for series in &panel.series {
         let c = series.colour;
         let points: Vec<(f64, f64)> = series.points.iter().filter(drawable).map(|p| (p.ms, p.error)).collect();
-        match series.line {
-            Some(true) => {
-                chart.draw_series(DashedLineSeries::new(points.clone(), 6, 4, c.stroke_width(2))).map_err(&err)?;
+        match series.line.map(Stroke::pattern) {
+            Some(Some((drawn, skipped))) => {
+                let line = DashedLineSeries::new(points.clone(), drawn, skipped, c.stroke_width(2));
+                chart.draw_series(line).map_err(&err)?;
             }
-            Some(false) => {
+            Some(None) => {
                 chart.draw_series(LineSeries::new(points.clone(), c.stroke_width(2))).map_err(&err)?;
             }
             None => {}
         }
-        let fill = if series.line == Some(true) { WHITE.filled() } else { c.filled() };
+        let hollow = series.line.is_some_and(|stroke| stroke != Stroke::Solid);
+        let fill = if hollow { WHITE.filled() } else { c.filled() };
         chart
             .draw_series(points.iter().map(|&p| {
                 EmptyElement::at(p) + Circle::new((0, 0), 5, fill) + Circle::new((0, 0), 5, c.stroke_width(2))
@@ -312,7 +313,7 @@ mod tests {
             series: vec![TimedSeries {
                 name: "ivp w=0.25 dense".into(),
                 colour: colour(0),
-                line: Some(true),
+                line: Some(Stroke::Dashed),
                 points: vec![point(3.0, 500.0, true), point(90.0, 9000.0, false)],
             }],
         };

@@ -15,6 +15,7 @@ use anyhow::{bail, ensure, Context, Result};
 
 use crate::charts::{self, TimedPanel, TimedPoint, TimedSeries};
 use crate::{ablate, run};
+use ivp_plot::Stroke;
 
 /// The classical methods, in the order of the tables (`oracle` reads the ground truth: shown, but
 /// never on the Pareto front).
@@ -83,6 +84,15 @@ impl Coverage {
             Coverage::Sparse => "sparse",
             Coverage::Dense => "dense",
             Coverage::SparseFullSize => "sparse full-size",
+        }
+    }
+
+    /// Its line in the chart.
+    fn stroke(self) -> Stroke {
+        match self {
+            Coverage::Sparse => Stroke::Solid,
+            Coverage::Dense => Stroke::Dashed,
+            Coverage::SparseFullSize => Stroke::Dotted,
         }
     }
 
@@ -500,7 +510,7 @@ fn timed_series<'a>(measurements: impl Iterator<Item = &'a Measurement>) -> Vec<
                 });
                 let name = format!("ivp, width {width}, {}", coverage.name());
                 let colour = ivp_plot::colour(CLASSICAL.len() + i);
-                (name, colour, Some(*coverage != Coverage::Sparse), Some(format!("P{iterations}")))
+                (name, colour, Some(coverage.stroke()), Some(format!("P{iterations}")))
             }
         };
         match series.iter_mut().find(|s| s.name == name) {

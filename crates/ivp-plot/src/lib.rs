@@ -61,6 +61,25 @@ pub fn colour(i: usize) -> RGBColor {
     PALETTE[i % PALETTE.len()]
 }
 
+/// How a line is drawn.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Stroke {
+    Solid,
+    Dashed,
+    Dotted,
+}
+
+impl Stroke {
+    /// Drawn and skipped lengths along the line, in pixels; `None` for a solid line.
+    pub fn pattern(self) -> Option<(u32, u32)> {
+        match self {
+            Stroke::Solid => None,
+            Stroke::Dashed => Some((6, 4)),
+            Stroke::Dotted => Some((2, 4)),
+        }
+    }
+}
+
 /// How an entry of a legend is drawn.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum Mark {
@@ -68,8 +87,8 @@ pub enum Mark {
     Bar,
     /// A marker alone: a filled or a hollow circle.
     Point { filled: bool },
-    /// A line, solid or dashed, with a marker on it (filled on a solid line, hollow on a dashed one).
-    Line { dashed: bool, marker: bool },
+    /// A line with a marker on it (filled on a solid line, hollow on the others).
+    Line { stroke: Stroke, marker: bool },
     /// A black ring on a thin line (points singled out, such as a Pareto front).
     Ring,
 }
@@ -100,14 +119,18 @@ pub fn draw_legend<DB: DrawingBackend>(
         match entry.mark {
             Mark::Bar => area.draw(&Rectangle::new([(x0 + 6, y - 7), (x1 - 6, y + 7)], c.filled()))?,
             Mark::Point { filled } => draw_marker(area, ((x0 + x1) / 2, y), c, filled)?,
-            Mark::Line { dashed, marker } => {
-                let dashes: Vec<(i32, i32)> =
-                    if dashed { (x0..x1).step_by(8).map(|s| (s, s + 4)).collect() } else { vec![(x0, x1)] };
+            Mark::Line { stroke, marker } => {
+                let dashes: Vec<(i32, i32)> = match stroke.pattern() {
+                    Some((drawn, skipped)) => {
+                        (x0..x1).step_by((drawn + skipped) as usize).map(|s| (s, (s + drawn as i32).min(x1))).collect()
+                    }
+                    None => vec![(x0, x1)],
+                };
                 for (a, b) in dashes {
                     area.draw(&PathElement::new([(a, y), (b, y)], c.stroke_width(2)))?;
                 }
                 if marker {
-                    draw_marker(area, ((x0 + x1) / 2, y), c, !dashed)?;
+                    draw_marker(area, ((x0 + x1) / 2, y), c, stroke == Stroke::Solid)?;
                 }
             }
             Mark::Ring => {

@@ -8,7 +8,7 @@ use anyhow::{anyhow, Result};
 use ivp_core::RgbImage;
 use ivp_plot::plotters::coord::Shift;
 use ivp_plot::plotters::prelude::*;
-use ivp_plot::{draw_legend, house_style, register_font, tick_label, Axis, LegendEntry, Mark, FONT};
+use ivp_plot::{draw_legend, house_style, register_font, tick_label, Axis, LegendEntry, Mark, Stroke, FONT};
 
 use crate::metrics_csv::MetricsRow;
 
@@ -139,7 +139,7 @@ fn draw_panel(area: &Area<'_>, legend: &Area<'_>, panel: &Panel, max_step: f64) 
         .map(|c| LegendEntry {
             label: c.label.clone(),
             colour: c.colour,
-            mark: Mark::Line { dashed: false, marker: c.markers },
+            mark: Mark::Line { stroke: Stroke::Solid, marker: c.markers },
         })
         .collect();
     draw_legend(legend, None, &entries).map_err(err)?;
