@@ -246,8 +246,8 @@ fn draw_timed_panel(area: &Area<'_>, panel: &TimedPanel, x_label: &str, y_label:
             }
             None => {}
         }
-        let hollow = series.line.is_some_and(|stroke| stroke != Stroke::Solid);
-        let fill = if hollow { WHITE.filled() } else { c.filled() };
+        let filled = series.line.is_none_or(Stroke::filled_markers);
+        let fill = if filled { c.filled() } else { WHITE.filled() };
         chart
             .draw_series(points.iter().map(|&p| {
                 EmptyElement::at(p) + Circle::new((0, 0), 5, fill) + Circle::new((0, 0), 5, c.stroke_width(2))

@@ -78,6 +78,11 @@ impl Stroke {
             Stroke::Dotted => Some((2, 4)),
         }
     }
+
+    /// Markers on a solid line are filled, on the others hollow.
+    pub fn filled_markers(self) -> bool {
+        self == Stroke::Solid
+    }
 }
 
 /// How an entry of a legend is drawn.
@@ -130,7 +135,7 @@ pub fn draw_legend<DB: DrawingBackend>(
                     area.draw(&PathElement::new([(a, y), (b, y)], c.stroke_width(2)))?;
                 }
                 if marker {
-                    draw_marker(area, ((x0 + x1) / 2, y), c, stroke == Stroke::Solid)?;
+                    draw_marker(area, ((x0 + x1) / 2, y), c, stroke.filled_markers())?;
                 }
             }
             Mark::Ring => {

@@ -212,9 +212,8 @@ pub fn run_demo(args: DemoArgs, progress: bool) -> Result<()> {
         DemoTraining::Reuse => println!("reusing the model trained in {}", args.out.display()),
         DemoTraining::Train { resume } => {
             println!(
-                "training a {} network (width {}) on generated scenes: {} steps of {} crops of {}x{} -> {}",
-                config.variant,
-                config.width_mult,
+                "training {} on generated scenes: {} steps of {} crops of {}x{} -> {}",
+                config.model()?,
                 config.steps,
                 config.batch,
                 config.crop,
