@@ -1,7 +1,8 @@
 //! The per-frame stages of inference at 1920x1080 besides the network (`ivp bench frame` times
 //! them end to end): the temporal prior, the background depth threshold, the new-region rule,
 //! the classical infillers, the tile plan of sparse inference, and what scaled inference adds
-//! around the network (the prior on shrunk frames; shrinking its inputs and growing its vectors).
+//! around the network (the prior on shrunk frames; shrinking the tiles' inputs and growing their
+//! vectors).
 //!
 //! `cargo bench -p ivp-core --bench frame_stages`.
 
@@ -11,19 +12,10 @@ static GLOBAL: mimalloc::MiMalloc = mimalloc::MiMalloc;
 use criterion::{criterion_group, criterion_main, Criterion};
 use glam::{DMat4, DVec3};
 use ivp_core::geometry::{FrameView, NearestKnown};
-use ivp_core::inference::{plan_tiles, shrunk_temporal_prior, ScaledPredictor, TileShape};
-use ivp_core::infill::{classical_infiller, fill_new_regions, InfillContext, InfillError, VectorPredictor};
+use ivp_core::inference::{plan_tiles, shrunk_temporal_prior, NetworkFrame, TileShape};
+use ivp_core::infill::{classical_infiller, fill_new_regions, InfillContext};
 use ivp_core::prior::{background_depth_threshold, target_prior};
 use ivp_core::{relative_pose, warp_forward, DepthMap, Image, Intrinsics, RgbImage, VectorField, WorldToCamera};
-
-/// Predicts zero everywhere: what [`ScaledPredictor`] costs around a network.
-struct Zero;
-
-impl VectorPredictor for Zero {
-    fn predict(&self, _: &VectorField, depth: &DepthMap, _: &[bool]) -> Result<VectorField, InfillError> {
-        Ok(VectorField::zeros(depth.width(), depth.height()))
-    }
-}
 
 /// A wall with boxes in front of it, seen from a camera at `x` metres.
 fn frame(w: usize, h: usize, x: f64) -> (RgbImage, DepthMap, WorldToCamera) {
@@ -65,10 +57,24 @@ fn bench_stages(c: &mut Criterion) {
     });
     group.bench_function("shrunk_temporal_prior_x2", |b| b.iter(|| shrunk_temporal_prior(&ctx, 2)));
     let prior = VectorField::zeros(w, h);
-    let scaled = ScaledPredictor::new(Zero, 2);
-    group.bench_function("scaled_predictor_x2_around_the_network", |b| {
-        b.iter(|| scaled.predict(&prior, &warp.depth, &holes).unwrap())
+    // One sparse pass at factor 2 without the network: the frame's blocks of holes, the tile
+    // plan, every tile's windows and every core's vectors written back.
+    group.bench_function("sparse_pass_x2_around_the_network", |b| {
+        b.iter(|| {
+            let frame = NetworkFrame::new(&prior, &warp.depth, &holes, 2);
+            let whole = frame.whole();
+            let mut vectors = VectorField::zeros(w, h);
+            for tile in plan_tiles(whole.width, whole.height, frame.holes(), TileShape::DEFAULT) {
+                let inputs = (frame.window(tile.input), frame.mask(tile.input));
+                for core in &tile.cores {
+                    frame.write_vectors(*core, |_, _| [1.0, 0.0], &mut vectors);
+                }
+                std::hint::black_box(inputs);
+            }
+            vectors
+        })
     });
+    group.bench_function("network_frame_x2_holes", |b| b.iter(|| NetworkFrame::new(&prior, &warp.depth, &holes, 2)));
     group.bench_function("plan_tiles", |b| b.iter(|| plan_tiles(w, h, &holes, TileShape::DEFAULT)));
     for method in ["fill", "telea"] {
         let infiller = classical_infiller(method).unwrap();

@@ -15,6 +15,34 @@ pub type DepthMap = Image<1>;
 /// Per-pixel 2-D vectors `(a, b)` in pixels: `a` along columns, `b` along rows.
 pub type VectorField = Image<2>;
 
+/// An axis-aligned rectangle of pixels: columns `x..x + width`, rows `y..y + height`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord)]
+pub struct Rect {
+    pub x: usize,
+    pub y: usize,
+    pub width: usize,
+    pub height: usize,
+}
+
+impl Rect {
+    /// The whole of a `width` x `height` frame.
+    pub fn whole(width: usize, height: usize) -> Rect {
+        Rect { x: 0, y: 0, width, height }
+    }
+
+    pub fn area(&self) -> usize {
+        self.width * self.height
+    }
+
+    /// The smallest rectangle that holds both.
+    pub fn union(&self, other: &Rect) -> Rect {
+        let (x, y) = (self.x.min(other.x), self.y.min(other.y));
+        let right = (self.x + self.width).max(other.x + other.width);
+        let bottom = (self.y + self.height).max(other.y + other.height);
+        Rect { x, y, width: right - x, height: bottom - y }
+    }
+}
+
 impl<const C: usize> Image<C> {
     /// An image filled with zeros.
     pub fn zeros(width: usize, height: usize) -> Self {

@@ -12,7 +12,7 @@ pub mod warp;
 pub use camera::{relative_pose, Intrinsics, WorldToCamera};
 pub use frame::{Direction, FrameView, Pixel};
 pub use holes::{HoleMask, PixelClass};
-pub use image::{DepthMap, Image, RgbImage, VectorField};
+pub use image::{DepthMap, Image, Rect, RgbImage, VectorField};
 pub use known_read::{sample_known, KnownRead};
 pub use nearest::NearestKnown;
 pub use warp::{splat_field, warp_forward, Warp};

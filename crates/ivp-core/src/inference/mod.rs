@@ -4,11 +4,13 @@
 //!
 //! Layer: the top of the crate; the one place where `nn` meets `infill` and `prior`.
 
+pub mod predictor;
 pub mod scaled;
 pub mod tiles;
 
-pub use scaled::{shrunk_temporal_prior, Scale, ScaledPredictor};
-pub use tiles::{plan_tiles, Tile, TileShape, TiledPredictor};
+pub use predictor::{Coverage, NetworkPredictor};
+pub use scaled::{shrunk_temporal_prior, NetworkFrame, Scale};
+pub use tiles::{plan_tiles, Tile, TileShape};
 
 use std::time::{Duration, Instant};
 
@@ -49,46 +51,10 @@ pub struct ModelPrediction {
     pub tiles: usize,
 }
 
+/// The network in one dense pass over the frame as it is.
 impl VectorPredictor for IvpNet {
     fn predict(&self, prior: &VectorField, depth: &DepthMap, holes: &[bool]) -> Result<VectorField, InfillError> {
-        if !self.config().variant.predicts_vectors() {
-            return Err(InfillError::Other("the intensity variant predicts colours, not vectors".into()));
-        }
-        let (w, h) = (prior.width(), prior.height());
-        let run = || -> candle_core::Result<VectorField> {
-            let mask: Vec<f32> = holes.iter().map(|&b| f32::from(u8::from(b))).collect();
-            let mask = Tensor::from_vec(mask, (1, 1, h, w), &Device::Cpu)?;
-            let prior = to_tensor(prior)?;
-            let depth = to_tensor(depth)?;
-            // The vector variants do not read the warped frame before compositing.
-            let unused = Tensor::zeros((1, 3, h, w), candle_core::DType::F32, &Device::Cpu)?;
-            let input = NetInput {
-                prior: &prior,
-                warped_depth: &depth,
-                mask: &mask,
-                warped: &unused,
-                last: None,
-                last_warped: None,
-            };
-            from_tensor(&self.raw_output(&input)?)
-        };
-        let vectors = run().map_err(|e| InfillError::Other(format!("network: {e}")))?;
-        tiles::ensure_finite_vectors(vectors, holes)
-    }
-}
-
-/// How the network covers a frame at test time.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Coverage {
-    /// One pass over the whole frame per iteration.
-    Dense,
-    /// Only the tiles that hold disocclusions still to fill ([`tiles`]); dense when that is cheaper.
-    Sparse(TileShape),
-}
-
-impl Default for Coverage {
-    fn default() -> Self {
-        Coverage::Sparse(TileShape::DEFAULT)
+        NetworkPredictor::new(self, Coverage::Dense, 1).predict(prior, depth, holes)
     }
 }
 
@@ -118,17 +84,9 @@ fn predict_frame(
 ) -> Result<FramePrediction, InfillError> {
     let (warped, depth, holes, prior) = (inputs.warped, inputs.warped_depth, inputs.holes, inputs.prior);
     if net.config().variant.predicts_vectors() {
-        let (out, tiles) = match coverage {
-            Coverage::Dense => {
-                let scaled = ScaledPredictor::new(net, factor);
-                (infill_iteratively(&scaled, warped, depth, holes, prior, iterations)?, 0)
-            }
-            Coverage::Sparse(shape) => {
-                let scaled = ScaledPredictor::new(TiledPredictor::new(net, shape), factor);
-                let out = infill_iteratively(&scaled, warped, depth, holes, prior, iterations)?;
-                (out, scaled.inner().tiles_run())
-            }
-        };
+        let predictor = NetworkPredictor::new(net, coverage, factor);
+        let out = infill_iteratively(&predictor, warped, depth, holes, prior, iterations)?;
+        let tiles = predictor.tiles_run();
         tracing::debug!(
             factor,
             filled_per_iteration = ?out.filled_per_iteration,

@@ -1,4 +1,4 @@
-//! The network and the temporal prior at a coarser scale than the frame: [`ScaledPredictor`] and
+//! The network and the temporal prior at a coarser scale than the frame: [`NetworkFrame`] and
 //! [`shrunk_temporal_prior`] (ALGORITHMS.md §6.7).
 //!
 //! The same head motion opens holes `k` times wider in a frame `k` times larger, while the
@@ -8,12 +8,13 @@
 //! each block of `s x s` hole pixels to a block of known pixels; the iterative infilling then
 //! reads colour and depth at full resolution, so texture keeps its detail.
 
+use std::borrow::Cow;
+
 use rayon::prelude::*;
 
 use crate::geometry::image::is_valid_depth;
-use crate::geometry::{DepthMap, FrameView, Image, Intrinsics, RgbImage, VectorField};
-use crate::infill::iterative::VectorPredictor;
-use crate::infill::{InfillContext, InfillError};
+use crate::geometry::{DepthMap, FrameView, Image, Intrinsics, Rect, RgbImage, VectorField};
+use crate::infill::InfillContext;
 use crate::prior::target_prior;
 
 /// The factor by which frames are shrunk before the network sees them.
@@ -65,48 +66,107 @@ impl std::fmt::Display for Scale {
     }
 }
 
-/// A [`VectorPredictor`] that runs `inner` on the frame shrunk by `factor` (blocks of
-/// `factor x factor` pixels) and scales its vectors back.
+/// The inputs of the iterative infilling (prior, depth, holes: full size) as the network sees
+/// them: shrunk by `factor` (blocks of `factor x factor` pixels), one window at a time, so that
+/// sparse inference shrinks only what its tiles read.
 ///
 /// Shrinking, for each block:
 /// - a hole if any of its pixels is one (so every hole pixel has a coarse prediction);
 /// - depth: as [`shrink_depth`] says (0 for a hole block, as the network expects);
 /// - prior: the mean of its non-zero vectors divided by `factor` (0 for a hole block).
 ///
-/// Growing: each hole pixel takes `factor` times the vector of its block.
-pub struct ScaledPredictor<P> {
-    inner: P,
+/// Growing ([`NetworkFrame::write_vectors`]): each hole pixel takes `factor` times the vector of
+/// its block. At factor 1 windows are plain crops.
+pub struct NetworkFrame<'a> {
+    prior: &'a VectorField,
+    depth: &'a DepthMap,
+    holes: &'a [bool],
     factor: usize,
+    /// The holes at the network's resolution.
+    network_holes: Cow<'a, [bool]>,
+    width: usize,
+    height: usize,
 }
 
-impl<P: VectorPredictor> ScaledPredictor<P> {
-    pub fn new(inner: P, factor: usize) -> Self {
-        Self { inner, factor: factor.max(1) }
-    }
-
-    pub fn inner(&self) -> &P {
-        &self.inner
-    }
-}
-
-impl<P: VectorPredictor> VectorPredictor for ScaledPredictor<P> {
-    fn predict(&self, prior: &VectorField, depth: &DepthMap, holes: &[bool]) -> Result<VectorField, InfillError> {
-        let s = self.factor;
-        if s == 1 {
-            return self.inner.predict(prior, depth, holes);
-        }
+impl<'a> NetworkFrame<'a> {
+    /// `holes` is row-major, `true` = a pixel to predict; all three are of one size.
+    pub fn new(prior: &'a VectorField, depth: &'a DepthMap, holes: &'a [bool], factor: usize) -> Self {
+        let s = factor.max(1);
         let (w, h) = (depth.width(), depth.height());
-        let coarse_holes = blocks_with(w, h, s, holes, true);
+        assert!(prior.same_size(depth) && holes.len() == w * h, "the prior, depth and holes differ in size");
+        let network_holes = if s == 1 { Cow::Borrowed(holes) } else { Cow::Owned(blocks_with(w, h, s, holes, true)) };
+        Self { prior, depth, holes, factor: s, network_holes, width: w.div_ceil(s), height: h.div_ceil(s) }
+    }
+
+    /// The frame the network sees, in its pixels.
+    pub fn whole(&self) -> Rect {
+        Rect::whole(self.width, self.height)
+    }
+
+    /// The pixels to predict at the network's resolution, row-major.
+    pub fn holes(&self) -> &[bool] {
+        &self.network_holes
+    }
+
+    /// The prior and the depth the network reads in `window` (its pixels).
+    pub fn window(&self, window: Rect) -> (VectorField, DepthMap) {
+        let (s, r) = (self.factor, window);
+        if s == 1 {
+            return (self.prior.crop(r.x, r.y, r.width, r.height), self.depth.crop(r.x, r.y, r.width, r.height));
+        }
+        let mut depth = shrink_depth_in(self.depth, s, window);
+        let mut prior = shrink_vectors_in(self.prior, s, window);
         // The network saw no depth and no prior on holes in training.
-        let mut coarse_depth = shrink_depth(depth, s);
-        let mut coarse_prior = shrink_vectors(prior, s);
-        for ((hole, z), p) in coarse_holes.iter().zip(coarse_depth.pixels_mut()).zip(coarse_prior.pixels_mut()) {
-            if *hole {
-                (*z, *p) = ([0.0], [0.0, 0.0]);
+        for v in 0..r.height {
+            let holes = &self.network_holes[(r.y + v) * self.width + r.x..][..r.width];
+            for (u, _) in holes.iter().enumerate().filter(|(_, &hole)| hole) {
+                depth.set(u, v, [0.0]);
+                prior.set(u, v, [0.0, 0.0]);
             }
         }
-        let coarse = self.inner.predict(&coarse_prior, &coarse_depth, &coarse_holes)?;
-        Ok(grow_vectors(&coarse, s, w, h, holes))
+        (prior, depth)
+    }
+
+    /// The network's hole mask in `window`: 1 at the pixels to predict, else 0.
+    pub fn mask(&self, window: Rect) -> DepthMap {
+        let r = window;
+        Image::from_fn(r.width, r.height, |u, v| {
+            [f32::from(u8::from(self.network_holes[(r.y + v) * self.width + r.x + u]))]
+        })
+    }
+
+    /// Writes the vectors of `core` (the network's pixels; `vector_at` takes coordinates within
+    /// it) into the full-size `out` at the pixels to predict: each takes `factor` times its
+    /// block's vector. Returns how many of the pixels written got a NaN or infinite vector.
+    pub fn write_vectors(
+        &self,
+        core: Rect,
+        vector_at: impl Fn(usize, usize) -> [f32; 2],
+        out: &mut VectorField,
+    ) -> usize {
+        let (s, w, h) = (self.factor, self.depth.width(), self.depth.height());
+        let grown = s as f32;
+        let field = out.pixels_mut();
+        let mut non_finite = 0;
+        for cv in core.y..core.y + core.height {
+            for cu in core.x..core.x + core.width {
+                if !self.network_holes[cv * self.width + cu] {
+                    continue;
+                }
+                let [x, y] = vector_at(cu - core.x, cv - core.y);
+                let vector = [x * grown, y * grown];
+                let finite = vector.iter().all(|c| c.is_finite());
+                for v in cv * s..((cv + 1) * s).min(h) {
+                    for u in cu * s..((cu + 1) * s).min(w) {
+                        if self.holes[v * w + u] {
+                            field[v * w + u] = vector;
+                            non_finite += usize::from(!finite);
+                        }
+                    }
+                }
+            }
+        }
+        non_finite
     }
 }
 
@@ -130,7 +190,7 @@ pub fn shrunk_temporal_prior(ctx: &InfillContext<'_>, factor: usize) -> Option<V
     let holes = &ctx.warped.holes;
     let (w, h) = (holes.width(), holes.height());
     let known = holes.known();
-    // A block is known when all its pixels are (as in ScaledPredictor, where any hole makes a hole).
+    // A block is known when all its pixels are (as in NetworkFrame, where any hole makes a hole).
     let coarse_known: Vec<bool> = blocks_with(w, h, s, &known, false).into_iter().map(|hole| !hole).collect();
     let k = shrink_intrinsics(ctx.intrinsics, s);
     let coarse = target_prior(&view_b, &view_n, ctx.target_pose, &k, &coarse_known).prior;
@@ -166,6 +226,7 @@ pub fn shrink_image(image: &RgbImage, s: usize) -> RgbImage {
     shrink_blocks(
         image,
         s,
+        shrunk_whole(image, s),
         |(sum, n): &mut ([f64; 3], usize), p| {
             (0..3).for_each(|c| sum[c] += p[c] as f64);
             *n += 1;
@@ -177,9 +238,15 @@ pub fn shrink_image(image: &RgbImage, s: usize) -> RgbImage {
 /// Each block of `s x s` depths becomes the mean of its valid depths; a block without any is
 /// `+inf` when it holds sky (`+inf`) and 0 (missing) otherwise.
 pub fn shrink_depth(depth: &DepthMap, s: usize) -> DepthMap {
+    shrink_depth_in(depth, s, shrunk_whole(depth, s))
+}
+
+/// [`shrink_depth`] in `window` of the shrunk frame.
+fn shrink_depth_in(depth: &DepthMap, s: usize, window: Rect) -> DepthMap {
     shrink_blocks(
         depth,
         s,
+        window,
         |(sum, n, sky): &mut (f64, usize, bool), [z]| {
             if is_valid_depth(z) {
                 *sum += z as f64;
@@ -199,12 +266,13 @@ pub fn shrink_depth(depth: &DepthMap, s: usize) -> DepthMap {
     )
 }
 
-/// Each block of `s x s` vectors (in pixels) becomes the mean of its non-zero vectors divided by
-/// `s`, or 0 when it has none.
-fn shrink_vectors(field: &VectorField, s: usize) -> VectorField {
+/// In `window` of the shrunk frame, each block of `s x s` vectors (in pixels) becomes the mean
+/// of its non-zero vectors divided by `s`, or 0 when it has none.
+fn shrink_vectors_in(field: &VectorField, s: usize, window: Rect) -> VectorField {
     shrink_blocks(
         field,
         s,
+        window,
         |(sum, n): &mut ([f64; 2], usize), [x, y]| {
             if x != 0.0 || y != 0.0 {
                 *sum = [sum[0] + x as f64, sum[1] + y as f64];
@@ -213,6 +281,11 @@ fn shrink_vectors(field: &VectorField, s: usize) -> VectorField {
         },
         |(sum, n)| if n == 0 { [0.0, 0.0] } else { sum.map(|x| (x / (n * s) as f64) as f32) },
     )
+}
+
+/// The whole of `image` shrunk by blocks of `s`, in blocks.
+fn shrunk_whole<const C: usize>(image: &Image<C>, s: usize) -> Rect {
+    Rect::whole(image.width().div_ceil(s), image.height().div_ceil(s))
 }
 
 /// For each block of `s x s` pixels of a `w x h` frame, whether any of its pixels (row-major
@@ -230,22 +303,27 @@ fn blocks_with(w: usize, h: usize, s: usize, mask: &[bool], value: bool) -> Vec<
     out
 }
 
-/// `image` shrunk by blocks of `s x s`: each block's pixels are folded into an accumulator by
-/// `add`, which `finish` turns into the block's value. One row of blocks at a time, reading the
-/// frame's rows front to back (the frame is tens of megabytes: this stage runs at memory speed).
+/// `window` (in blocks) of `image` shrunk by blocks of `s x s`: each block's pixels are folded
+/// into an accumulator by `add`, which `finish` turns into the block's value. One row of blocks
+/// at a time, reading the frame's rows front to back (the frame is tens of megabytes: shrinking
+/// all of it runs at memory speed).
 fn shrink_blocks<const C: usize, A: Default + Clone + Send>(
     image: &Image<C>,
     s: usize,
+    window: Rect,
     add: impl Fn(&mut A, [f32; C]) + Sync,
     finish: impl Fn(A) -> [f32; C] + Sync,
 ) -> Image<C> {
     let (w, h) = (image.width(), image.height());
-    let (cw, ch) = (w.div_ceil(s), h.div_ceil(s));
-    let mut out = Image::zeros(cw, ch);
-    out.pixels_mut().par_chunks_mut(cw.max(1)).enumerate().for_each(|(cv, cells)| {
-        let mut accumulators = vec![A::default(); cw];
+    let r = window;
+    assert!((r.x + r.width) * s < w + s && (r.y + r.height) * s < h + s, "window outside the shrunk frame");
+    let columns = r.x * s..((r.x + r.width) * s).min(w);
+    let mut out = Image::zeros(r.width, r.height);
+    out.pixels_mut().par_chunks_mut(r.width.max(1)).enumerate().for_each(|(row, cells)| {
+        let cv = r.y + row;
+        let mut accumulators = vec![A::default(); r.width];
         for v in cv * s..((cv + 1) * s).min(h) {
-            for (acc, pixels) in accumulators.iter_mut().zip(image.row(v).chunks(s)) {
+            for (acc, pixels) in accumulators.iter_mut().zip(image.row(v)[columns.clone()].chunks(s)) {
                 pixels.iter().for_each(|&p| add(acc, p));
             }
         }
@@ -259,21 +337,6 @@ fn shrink_blocks<const C: usize, A: Default + Clone + Send>(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use std::sync::Mutex;
-
-    /// Records what it was asked and answers a fixed vector on every hole.
-    struct Probe {
-        seen: Mutex<Option<(VectorField, DepthMap, Vec<bool>)>>,
-        answer: [f32; 2],
-    }
-
-    impl VectorPredictor for Probe {
-        fn predict(&self, prior: &VectorField, depth: &DepthMap, holes: &[bool]) -> Result<VectorField, InfillError> {
-            *self.seen.lock().unwrap() = Some((prior.clone(), depth.clone(), holes.to_vec()));
-            let w = depth.width();
-            Ok(VectorField::from_fn(w, depth.height(), |u, v| if holes[v * w + u] { self.answer } else { [0.0; 2] }))
-        }
-    }
 
     #[test]
     fn auto_scale_shrinks_tall_frames_towards_the_training_height() {
@@ -298,36 +361,83 @@ mod tests {
         let holes: Vec<bool> = (0..w * h).map(|i| hole(i % w, i / w)).collect();
         let depth = DepthMap::from_fn(w, h, |u, v| [if hole(u, v) { 0.0 } else { 1.0 + u as f32 }]);
         let prior = VectorField::from_fn(w, h, |u, _| if u == 0 { [4.0, -2.0] } else { [0.0; 2] });
-        let probe = Probe { seen: Mutex::new(None), answer: [1.5, -0.5] };
-        let vectors = ScaledPredictor::new(&probe, 2).predict(&prior, &depth, &holes).unwrap();
-        let (coarse_prior, coarse_depth, coarse_holes) = probe.seen.lock().unwrap().take().unwrap();
-        assert_eq!((coarse_depth.width(), coarse_depth.height()), (3, 2));
-        assert_eq!(coarse_holes, [false, true, false, false, false, false]);
+        let frame = NetworkFrame::new(&prior, &depth, &holes, 2);
+        assert_eq!(frame.whole(), Rect::whole(3, 2));
+        assert_eq!(frame.holes(), [false, true, false, false, false, false]);
+        let (coarse_prior, coarse_depth) = frame.window(frame.whole());
         // Block (0, 0): depths 1, 2, 1, 2; prior (4, -2) on its left column only, halved.
         assert_eq!(coarse_depth.get(0, 0), [1.5]);
         assert_eq!(coarse_prior.get(0, 0), [2.0, -1.0]);
         // The hole block reads as a hole: depth 0, no prior. The partial corner block: depth 5.
         assert_eq!((coarse_depth.get(1, 0), coarse_prior.get(1, 0)), ([0.0], [0.0, 0.0]));
         assert_eq!(coarse_depth.get(2, 1), [5.0]);
+        assert_eq!(frame.mask(frame.whole()).pixels(), [[0.0], [1.0], [0.0], [0.0], [0.0], [0.0]]);
+        let mut vectors = VectorField::zeros(w, h);
+        assert_eq!(frame.write_vectors(frame.whole(), |_, _| [1.5, -0.5], &mut vectors), 0);
         for v in 0..h {
             for u in 0..w {
                 let expected = if hole(u, v) { [3.0, -1.0] } else { [0.0, 0.0] };
                 assert_eq!(vectors.get(u, v), expected, "pixel ({u}, {v})");
             }
         }
+        // A non-finite vector is counted once per pixel it is written to.
+        let mut vectors = VectorField::zeros(w, h);
+        assert_eq!(frame.write_vectors(frame.whole(), |_, _| [f32::NAN, 0.0], &mut vectors), 1);
+    }
+
+    /// Sparse inference reads windows of the shrunk frame: each must be the part of the whole.
+    #[test]
+    fn a_window_is_that_part_of_the_whole_shrunk_frame() {
+        let (w, h) = (41, 29);
+        let holes: Vec<bool> = (0..w * h).map(|i| (i * 7919) % 23 == 0).collect();
+        let depth = DepthMap::from_fn(w, h, |u, v| match (u * 3 + v) % 11 {
+            0 => [f32::INFINITY],
+            1 => [f32::NAN],
+            k => [if holes[v * w + u] { 0.0 } else { 0.5 + k as f32 }],
+        });
+        let prior =
+            VectorField::from_fn(
+                w,
+                h,
+                |u, v| if (u + v) % 3 == 0 { [0.0; 2] } else { [u as f32 - 9.0, 2.0 - v as f32] },
+            );
+        for s in [1, 2, 3, 5] {
+            let frame = NetworkFrame::new(&prior, &depth, &holes, s);
+            let whole = frame.whole();
+            let (all_prior, all_depth) = frame.window(whole);
+            let all_mask = frame.mask(whole);
+            for r in [
+                whole,
+                Rect { x: 1, y: 2, width: 3, height: 4 },
+                Rect { x: whole.width - 2, y: whole.height - 1, width: 2, height: 1 },
+            ] {
+                let (prior_r, depth_r) = frame.window(r);
+                assert_eq!(prior_r, all_prior.crop(r.x, r.y, r.width, r.height), "factor {s}, {r:?}");
+                let same = |a: f32, b: f32| a == b || (a.is_nan() && b.is_nan());
+                let crop = all_depth.crop(r.x, r.y, r.width, r.height);
+                assert!(depth_r.pixels().iter().zip(crop.pixels()).all(|(a, b)| same(a[0], b[0])), "factor {s}, {r:?}");
+                assert_eq!(frame.mask(r), all_mask.crop(r.x, r.y, r.width, r.height));
+            }
+        }
     }
 
     #[test]
-    fn factor_one_passes_through() {
+    fn factor_one_reads_the_frame_as_it_is() {
         let (w, h) = (4, 4);
         let holes: Vec<bool> = (0..w * h).map(|i| i == 5).collect();
-        let depth = DepthMap::filled(w, h, [2.0]);
-        let prior = VectorField::zeros(w, h);
-        let probe = Probe { seen: Mutex::new(None), answer: [1.0, 1.0] };
-        let vectors = ScaledPredictor::new(&probe, 1).predict(&prior, &depth, &holes).unwrap();
-        let (_, seen_depth, seen_holes) = probe.seen.lock().unwrap().take().unwrap();
-        assert_eq!((seen_depth, seen_holes), (depth, holes));
+        let depth = DepthMap::from_fn(w, h, |u, v| [1.0 + (u + v) as f32]);
+        let prior = VectorField::from_fn(w, h, |u, v| [u as f32, v as f32]);
+        let frame = NetworkFrame::new(&prior, &depth, &holes, 1);
+        assert_eq!(frame.holes(), &holes[..]);
+        assert_eq!(frame.window(frame.whole()), (prior.clone(), depth.clone()));
+        let mut vectors = VectorField::zeros(w, h);
+        frame.write_vectors(
+            Rect { x: 1, y: 1, width: 2, height: 2 },
+            |u, v| [u as f32 + 1.0, v as f32 + 1.0],
+            &mut vectors,
+        );
         assert_eq!(vectors.get(1, 1), [1.0, 1.0]);
+        assert!(vectors.pixels().iter().enumerate().all(|(i, v)| i == 5 || *v == [0.0, 0.0]));
     }
 
     #[test]
@@ -395,26 +505,5 @@ mod tests {
         assert!(a != 0.0 && b != 0.0 && a.signum() == b.signum(), "fine {a}, shrunk {b}");
         assert!((b / a - 1.0).abs() < 0.5, "fine {a}, shrunk {b}");
         assert!(shrunk.pixels().iter().flatten().all(|x| x.is_finite()));
-    }
-
-    #[test]
-    fn a_network_shrunk_to_a_few_pixels_still_fills_every_hole() {
-        use crate::nn::model::{IvpNet, ModelConfig, Variant};
-        let (net, _) = IvpNet::seeded(ModelConfig::new(Variant::Full, 0.125), 5).unwrap();
-        // 37 x 23 pixels at factor 16: 3 x 2 blocks, one of them holding the whole hole.
-        let (w, h) = (37, 23);
-        let holes: Vec<bool> = (0..w * h).map(|i| (10..14).contains(&(i % w)) && (5..9).contains(&(i / w))).collect();
-        let depth = DepthMap::from_fn(w, h, |u, v| [if holes[v * w + u] { 0.0 } else { 3.0 + u as f32 }]);
-        let prior = VectorField::zeros(w, h);
-        for factor in [16, 40] {
-            let vectors = ScaledPredictor::new(&net, factor).predict(&prior, &depth, &holes).unwrap();
-            assert_eq!((vectors.width(), vectors.height()), (w, h));
-            for (i, v) in vectors.pixels().iter().enumerate() {
-                assert!(v.iter().all(|x| x.is_finite()), "factor {factor}, pixel {i}: {v:?}");
-                if !holes[i] {
-                    assert_eq!(*v, [0.0, 0.0]);
-                }
-            }
-        }
     }
 }

@@ -1,6 +1,6 @@
-//! Sparse inference: the network runs only on tiles of the frame whose core holds pixels to
-//! predict, each read with a margin of context around it, and the tiles of one size go through
-//! the network as one batch.
+//! The plan of sparse inference: the network runs only on tiles of the frame whose core holds
+//! pixels to predict, each read with a margin of context around it ([`plan_tiles`];
+//! [`super::predictor`] runs them).
 //!
 //! Tiles sit on a grid of `core`-sized cells anchored at the frame's top-left corner, and `core`
 //! and `margin` are multiples of 16, so every tile starts on a multiple of 16: the U-Net's four
@@ -11,21 +11,11 @@
 //! behind [`TileShape::DEFAULT`]).
 
 use std::collections::BTreeMap;
-use std::sync::atomic::{AtomicUsize, Ordering};
 
-use candle_core::{DType, Device, Tensor};
-
-use crate::geometry::{DepthMap, Image, VectorField};
-use crate::infill::{InfillError, VectorPredictor};
-use crate::nn::model::{IvpNet, NetInput};
-use crate::nn::tensor::to_batch_tensor;
+use crate::geometry::Rect;
 
 /// Tiles start on multiples of this: the U-Net halves its maps four times.
 pub const TILE_ALIGN: usize = 16;
-
-/// Tiles of one size per network call: bounds the memory of a batch (about 40 MB of feature maps
-/// per 128x128 tile at width 1).
-const MAX_TILES_PER_BATCH: usize = 16;
 
 /// The shape of the tiles of sparse inference, in pixels.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -57,29 +47,6 @@ impl TileShape {
 impl Default for TileShape {
     fn default() -> Self {
         Self::DEFAULT
-    }
-}
-
-/// An axis-aligned rectangle of pixels: columns `x..x + width`, rows `y..y + height`.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord)]
-pub struct Rect {
-    pub x: usize,
-    pub y: usize,
-    pub width: usize,
-    pub height: usize,
-}
-
-impl Rect {
-    pub fn area(&self) -> usize {
-        self.width * self.height
-    }
-
-    /// The smallest rectangle that holds both.
-    pub fn union(&self, other: &Rect) -> Rect {
-        let (x, y) = (self.x.min(other.x), self.y.min(other.y));
-        let right = (self.x + self.width).max(other.x + other.width);
-        let bottom = (self.y + self.height).max(other.y + other.height);
-        Rect { x, y, width: right - x, height: bottom - y }
     }
 }
 
@@ -223,129 +190,9 @@ impl UnionFind {
     }
 }
 
-/// A network that predicts vectors tile by tile ([`plan_tiles`]), or in one dense pass when the
-/// tiles would cover more pixels than the frame has.
-#[derive(Debug)]
-pub struct TiledPredictor<'a> {
-    net: &'a IvpNet,
-    shape: TileShape,
-    tiles_run: AtomicUsize,
-    dense_passes: AtomicUsize,
-}
-
-impl<'a> TiledPredictor<'a> {
-    pub fn new(net: &'a IvpNet, shape: TileShape) -> Self {
-        Self { net, shape, tiles_run: AtomicUsize::new(0), dense_passes: AtomicUsize::new(0) }
-    }
-
-    /// Tiles run through the network so far, over every call.
-    pub fn tiles_run(&self) -> usize {
-        self.tiles_run.load(Ordering::Relaxed)
-    }
-
-    /// Calls that ran densely because the tiles would have cost more.
-    pub fn dense_passes(&self) -> usize {
-        self.dense_passes.load(Ordering::Relaxed)
-    }
-
-    fn predict_tiles(
-        &self,
-        prior: &VectorField,
-        depth: &DepthMap,
-        holes: &[bool],
-        tiles: &[Tile],
-    ) -> candle_core::Result<VectorField> {
-        let (w, h) = (prior.width(), prior.height());
-        let mut out = VectorField::zeros(w, h);
-        // Tiles of one input size share a batch; a BTreeMap keeps the order fixed.
-        let mut by_size: BTreeMap<(usize, usize), Vec<Tile>> = BTreeMap::new();
-        for tile in tiles {
-            by_size.entry((tile.input.width, tile.input.height)).or_default().push(tile.clone());
-        }
-        for ((tw, th), group) in by_size {
-            for batch in group.chunks(MAX_TILES_PER_BATCH) {
-                // Each tile's window of the frame's inputs, stacked into one tensor per input.
-                let priors: Vec<VectorField> = batch.iter().map(|t| prior.crop(t.input.x, t.input.y, tw, th)).collect();
-                let depths: Vec<DepthMap> = batch.iter().map(|t| depth.crop(t.input.x, t.input.y, tw, th)).collect();
-                let masks: Vec<DepthMap> = batch
-                    .iter()
-                    .map(|t| {
-                        Image::from_fn(tw, th, |u, v| [f32::from(u8::from(holes[(t.input.y + v) * w + t.input.x + u]))])
-                    })
-                    .collect();
-                let stack = |images: &[DepthMap]| to_batch_tensor(&images.iter().collect::<Vec<_>>());
-                let prior_t = to_batch_tensor(&priors.iter().collect::<Vec<_>>())?;
-                let (depth_t, mask_t) = (stack(&depths)?, stack(&masks)?);
-                // The vector variants do not read the warped frame before compositing.
-                let unused = Tensor::zeros((batch.len(), 3, th, tw), DType::F32, &Device::Cpu)?;
-                let input = NetInput {
-                    prior: &prior_t,
-                    warped_depth: &depth_t,
-                    mask: &mask_t,
-                    warped: &unused,
-                    last: None,
-                    last_warped: None,
-                };
-                let vectors: Vec<f32> = self.net.raw_output(&input)?.flatten_all()?.to_vec1()?;
-                let plane = tw * th;
-                let field = out.pixels_mut();
-                for (tile, values) in batch.iter().zip(vectors.chunks_exact(2 * plane)) {
-                    let (a, b) = values.split_at(plane);
-                    for core in &tile.cores {
-                        for v in core.y..core.y + core.height {
-                            for u in core.x..core.x + core.width {
-                                let i = v * w + u;
-                                if holes[i] {
-                                    let j = (v - tile.input.y) * tw + (u - tile.input.x);
-                                    field[i] = [a[j], b[j]];
-                                }
-                            }
-                        }
-                    }
-                }
-                self.tiles_run.fetch_add(batch.len(), Ordering::Relaxed);
-            }
-        }
-        Ok(out)
-    }
-}
-
-impl VectorPredictor for TiledPredictor<'_> {
-    fn predict(&self, prior: &VectorField, depth: &DepthMap, holes: &[bool]) -> Result<VectorField, InfillError> {
-        if !self.net.config().variant.predicts_vectors() {
-            return Err(InfillError::Other("the intensity variant predicts colours, not vectors".into()));
-        }
-        let (w, h) = (prior.width(), prior.height());
-        let tiles = plan_tiles(w, h, holes, self.shape);
-        let tiled_area: usize = tiles.iter().map(|t| t.input.area()).sum();
-        if tiled_area >= w * h {
-            self.dense_passes.fetch_add(1, Ordering::Relaxed);
-            return self.net.predict(prior, depth, holes);
-        }
-        let vectors =
-            self.predict_tiles(prior, depth, holes, &tiles).map_err(|e| InfillError::Other(format!("network: {e}")))?;
-        ensure_finite_vectors(vectors, holes)
-    }
-}
-
-/// Refuses vectors with a NaN or infinite component at a hole pixel: broken weights or inputs
-/// must not pass for a prediction (the iterative infilling would silently fall back to `fill`).
-pub(crate) fn ensure_finite_vectors(vectors: VectorField, holes: &[bool]) -> Result<VectorField, InfillError> {
-    let bad = vectors.pixels().iter().zip(holes).filter(|(v, &hole)| hole && !v.iter().all(|x| x.is_finite())).count();
-    if bad == 0 {
-        return Ok(vectors);
-    }
-    let total = holes.iter().filter(|&&h| h).count();
-    Err(InfillError::Other(format!(
-        "network: {bad} of {total} hole pixels got non-finite vectors (NaN or infinite): the model's weights or \
-         inputs are broken"
-    )))
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::nn::model::{ModelConfig, Variant};
 
     fn marks(width: usize, height: usize, pixels: &[(usize, usize)]) -> Vec<bool> {
         let mut marked = vec![false; width * height];
@@ -412,96 +259,5 @@ mod tests {
             assert!(i.x <= c.x.saturating_sub(32) && i.y <= c.y.saturating_sub(32));
             assert!(i.x + i.width >= (c.x + c.width + 32).min(w) && i.y + i.height >= (c.y + c.height + 32).min(h));
         }
-    }
-
-    /// A frame with two hole patches, one touching the right border.
-    fn frame(w: usize, h: usize) -> (VectorField, DepthMap, Vec<bool>) {
-        let holes: Vec<bool> =
-            (0..w * h).map(|i| matches!((i % w, i / w), (20..=27, 30..=60) | (150..=159, 5..=12))).collect();
-        let prior = VectorField::from_fn(w, h, |u, v| [((u * 7 + v) % 13) as f32 * 0.3 - 2.0, (v % 5) as f32 * 0.4]);
-        let depth = DepthMap::from_fn(w, h, |u, v| [if holes[v * w + u] { 0.0 } else { 1.0 + (u as f32 * 0.05) }]);
-        (prior, depth, holes)
-    }
-
-    #[test]
-    fn non_finite_vectors_at_holes_are_an_error() {
-        let holes = [false, true, true, false];
-        let ok = VectorField::from_pixels(2, 2, vec![[f32::NAN, 0.0], [1.0, 2.0], [0.5, -3.0], [f32::INFINITY, 0.0]]);
-        assert!(ensure_finite_vectors(ok, &holes).is_ok(), "values outside holes are ignored");
-        for bad in [f32::NAN, f32::INFINITY, f32::NEG_INFINITY] {
-            let v = VectorField::from_pixels(2, 2, vec![[0.0; 2], [1.0, bad], [0.5, -3.0], [0.0; 2]]);
-            let err = ensure_finite_vectors(v, &holes).unwrap_err().to_string();
-            assert!(
-                err.contains("network:") && err.contains("1 of 2 hole pixels") && err.contains("non-finite"),
-                "{err}"
-            );
-        }
-    }
-
-    /// A network whose weights are all NaN: every prediction must be refused, dense or tiled.
-    #[test]
-    fn a_network_with_nan_weights_is_refused_dense_and_tiled() {
-        let (net, varmap) = IvpNet::seeded(ModelConfig::new(Variant::Full, 0.125), 5).unwrap();
-        for var in varmap.all_vars() {
-            let nan = Tensor::full(f32::NAN, var.shape(), &Device::Cpu).unwrap();
-            var.set(&nan).unwrap();
-        }
-        let (w, h) = (480, 320);
-        let (prior, depth, holes) = frame(w, h);
-        let err = net.predict(&prior, &depth, &holes).unwrap_err().to_string();
-        assert!(err.contains("non-finite vectors"), "{err}");
-        let tiled = TiledPredictor::new(&net, TileShape::new(32, 80).unwrap());
-        let err = tiled.predict(&prior, &depth, &holes).unwrap_err().to_string();
-        assert!(tiled.tiles_run() > 0, "the sparse path must be the one tested");
-        assert!(err.contains("non-finite vectors"), "{err}");
-    }
-
-    #[test]
-    fn tiles_with_a_margin_beyond_the_receptive_field_match_a_dense_pass() {
-        let (net, _) = IvpNet::seeded(ModelConfig::new(Variant::Full, 0.125), 5).unwrap();
-        let (w, h) = (480, 320);
-        let (prior, depth, holes) = frame(w, h);
-        let dense = net.predict(&prior, &depth, &holes).unwrap();
-        // The U-Net and depth head together see about 70 pixels on each side.
-        let tiled = TiledPredictor::new(&net, TileShape::new(32, 80).unwrap());
-        let sparse = tiled.predict(&prior, &depth, &holes).unwrap();
-        assert!(tiled.tiles_run() > 0 && tiled.dense_passes() == 0);
-        let worst = dense.as_flat().iter().zip(sparse.as_flat()).map(|(a, b)| (a - b).abs()).fold(0f32, f32::max);
-        assert!(worst < 1e-4, "largest difference {worst}");
-        // Without context the tiles do differ: the comparison above can fail.
-        let blind = TiledPredictor::new(&net, TileShape::new(32, 0).unwrap()).predict(&prior, &depth, &holes).unwrap();
-        let worst = dense.as_flat().iter().zip(blind.as_flat()).map(|(a, b)| (a - b).abs()).fold(0f32, f32::max);
-        assert!(worst > 1e-2, "a margin of 0 should change the vectors, largest difference {worst}");
-        for (i, v) in sparse.pixels().iter().enumerate() {
-            assert!(holes[i] || *v == [0.0, 0.0]);
-        }
-    }
-
-    #[test]
-    fn all_hole_frames_run_densely_and_results_do_not_depend_on_threads() {
-        let (net, _) = IvpNet::seeded(ModelConfig::new(Variant::Full, 0.125), 6).unwrap();
-        let (w, h) = (96, 80);
-        let (prior, depth, _) = frame(w, h);
-        let all = vec![true; w * h];
-        let tiled = TiledPredictor::new(&net, TileShape::DEFAULT);
-        let out = tiled.predict(&prior, &depth, &all).unwrap();
-        assert_eq!((tiled.dense_passes(), tiled.tiles_run()), (1, 0));
-        assert_eq!(out, net.predict(&prior, &depth, &all).unwrap());
-
-        let (w, h) = (176, 96);
-        let (prior, depth, holes) = frame(w, h);
-        let run = |threads: usize| {
-            let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
-            pool.install(|| TiledPredictor::new(&net, TileShape::new(32, 16).unwrap()).predict(&prior, &depth, &holes))
-                .unwrap()
-        };
-        assert_eq!(run(1), run(3));
-    }
-
-    #[test]
-    fn the_intensity_variant_is_refused() {
-        let (net, _) = IvpNet::seeded(ModelConfig::new(Variant::Intensity, 0.125), 1).unwrap();
-        let (prior, depth, holes) = frame(176, 96);
-        assert!(TiledPredictor::new(&net, TileShape::DEFAULT).predict(&prior, &depth, &holes).is_err());
     }
 }
