@@ -16,6 +16,10 @@ use crate::geometry::{
 
 /// Half the side of the patches compared by the fictitious-vector search (5x5 patches).
 pub const PATCH_RADIUS: usize = 2;
+/// The fictitious-vector search reads the ground truth only this close to a hole (Chebyshev
+/// distance): a candidate is at most 2 pixels from the hole it is found from (one past the
+/// nearest known pixel), and patches reach [`PATCH_RADIUS`] further.
+pub const GROUND_TRUTH_REACH: usize = PATCH_RADIUS + 2;
 /// A candidate is accepted only if its patch RMSE, on the 0..255 scale, is at most this.
 pub const MAX_PATCH_RMSE: f32 = 50.0;
 /// Half the side of the window over which splatted vectors are averaged (11x11).
@@ -231,9 +235,22 @@ pub fn target_prior(
     known_t: &[bool],
 ) -> TargetPrior {
     let warp_to_last = warp_to_last(before_last, last, k);
-    let vectors = estimate_fictitious_vectors(&warp_to_last.holes.known(), last.image);
-    let prior = temporal_prior(&vectors, last.depth, k, &relative_pose(last.pose, target_pose), known_t);
+    let prior = prior_from_last(&warp_to_last.holes.known(), last, target_pose, k, known_t);
     TargetPrior { prior, warp_to_last }
+}
+
+/// [`target_prior`] from the known mask `known_n` of the warp `n - 2 -> n` (steps 2-3): what the
+/// prior needs of that warp is where it lands ([`crate::geometry::warp_known`]), not its colours.
+/// `last.image` is read only within [`GROUND_TRUTH_REACH`] of the holes of `known_n`.
+pub fn prior_from_last(
+    known_n: &[bool],
+    last: &FrameView<'_>,
+    target_pose: &WorldToCamera,
+    k: &Intrinsics,
+    known_t: &[bool],
+) -> VectorField {
+    let vectors = estimate_fictitious_vectors(known_n, last.image);
+    temporal_prior(&vectors, last.depth, k, &relative_pose(last.pose, target_pose), known_t)
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -537,6 +554,35 @@ mod tests {
         // Fictitious vectors are 2..=7 px to the right, halved: the prior points right, 1..=3.5 px.
         assert!(nonzero.iter().all(|&[a, b]| (1.0 - 1e-4..=3.5 + 1e-4).contains(&a) && b == 0.0), "{nonzero:?}");
         assert!(prior.pixels().iter().zip(&known_t).all(|(p, &known)| known || *p == [0.0, 0.0]));
+    }
+
+    #[test]
+    fn the_prior_needs_only_the_known_mask_of_the_warp_and_the_last_frame_near_its_holes() {
+        let k = test_scene::intrinsics();
+        let (f0, d0, p0) = test_scene::render(0.0);
+        let (f2, d2, p2) = test_scene::render(0.2);
+        let (_, _, p3) = test_scene::render(0.3);
+        let known_t = warp_forward(&f2, &d2, &k, &relative_pose(&p2, &p3)).holes.known();
+        let before_last = FrameView { image: &f0, depth: &d0, pose: &p0 };
+        let last = FrameView { image: &f2, depth: &d2, pose: &p2 };
+        let whole = target_prior(&before_last, &last, &p3, &k, &known_t).prior;
+        let known_n = crate::geometry::warp_known(&d0, &k, &relative_pose(&p0, &p2));
+        assert_eq!(known_n, warp_to_last(&before_last, &last, &k).holes.known());
+        // The last frame replaced by NaN beyond the reach of the holes changes nothing.
+        let (w, h) = (f2.width(), f2.height());
+        let holes: Vec<bool> = known_n.iter().map(|&k| !k).collect();
+        let near = crate::geometry::within_reach(&holes, w, h, GROUND_TRUTH_REACH);
+        assert!(near.iter().filter(|&&n| !n).count() > w * h / 2, "most of the frame is out of reach");
+        let pixels = f2.pixels().iter().zip(&near).map(|(&p, &n)| if n { p } else { [f32::NAN; 3] }).collect();
+        let cut = RgbImage::from_pixels(w, h, pixels);
+        let from_cut = prior_from_last(&known_n, &FrameView { image: &cut, ..last }, &p3, &k, &known_t);
+        assert_eq!(from_cut, whole);
+        assert!(whole.pixels().iter().any(|&v| v != [0.0, 0.0]));
+        // One pixel less of reach does change it: the reach is not larger than needed.
+        let nearer = crate::geometry::within_reach(&holes, w, h, GROUND_TRUTH_REACH - 1);
+        let pixels = f2.pixels().iter().zip(&nearer).map(|(&p, &n)| if n { p } else { [f32::NAN; 3] }).collect();
+        let cut = RgbImage::from_pixels(w, h, pixels);
+        assert_ne!(prior_from_last(&known_n, &FrameView { image: &cut, ..last }, &p3, &k, &known_t), whole);
     }
 
     #[test]

@@ -130,7 +130,7 @@ pub fn bench_infer(case: &InferCase) -> Result<BenchReport> {
 }
 
 /// Milliseconds per run by operator.
-type OperatorTimes = BTreeMap<String, f64>;
+pub(crate) type OperatorTimes = BTreeMap<String, f64>;
 
 /// Runs `f` `warmup` times, then `runs` times under the clock (and the operator profile if asked).
 fn timed_runs(
@@ -152,14 +152,21 @@ fn timed_runs(
     }
     profile::set_enabled(false);
     let operators = profile::take();
-    let breakdown = with_profile.then(|| {
-        let per_run = |d: Duration| d.as_secs_f64() * 1e3 / times.len() as f64;
-        let mut ms: BTreeMap<String, f64> = operators.iter().map(|(k, v)| (k.to_string(), per_run(v.total))).collect();
-        let listed: f64 = ms.values().sum();
-        ms.insert("other".into(), per_run(times.iter().sum()) - listed);
-        ms
-    });
+    let breakdown = with_profile.then(|| operator_breakdown(&operators, &times));
     Ok((times, breakdown))
+}
+
+/// Milliseconds per run of each operator recorded over `times`, and `other`: the rest of the
+/// runs' time.
+pub(crate) fn operator_breakdown(
+    operators: &BTreeMap<&'static str, profile::OperatorTime>,
+    times: &[Duration],
+) -> OperatorTimes {
+    let per_run = |d: Duration| d.as_secs_f64() * 1e3 / times.len().max(1) as f64;
+    let mut ms: OperatorTimes = operators.iter().map(|(k, v)| (k.to_string(), per_run(v.total))).collect();
+    let listed: f64 = ms.values().sum();
+    ms.insert("other".into(), per_run(times.iter().sum()) - listed);
+    ms
 }
 
 fn report(case: String, times: &[Duration], width_mult: f64, profile: Option<BTreeMap<String, f64>>) -> BenchReport {

@@ -16,6 +16,9 @@ use ivp_core::{relative_pose, warp_forward};
 use ivp_data::{render_clip, SceneParams};
 use serde::Serialize;
 
+use ivp_core::nn::ops::profile;
+
+use crate::bench::{operator_breakdown, OperatorTimes};
 use crate::checkpoint::load_model;
 
 /// What `ivp bench frame` times.
@@ -36,6 +39,8 @@ pub struct FrameCase {
     pub runs: usize,
     /// Seed of the generated scene (and of the untrained weights).
     pub seed: u64,
+    /// Also report the network's time by operator.
+    pub profile: bool,
 }
 
 /// Milliseconds of one stage over the timed runs.
@@ -73,6 +78,10 @@ pub struct FrameReport {
     /// D-MSE of the frame (8-bit), and of `fill` on the same warp.
     pub d_mse: Option<f64>,
     pub d_mse_fill: Option<f64>,
+    /// Milliseconds per run of the network stage by operator (`--profile`); `other` is the rest
+    /// of the stage (inputs, outputs, candle's own operators).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub network_profile: Option<OperatorTimes>,
 }
 
 /// Frame `n - 2`, `n` and the target `t = n + 1` of the generated clip.
@@ -115,6 +124,10 @@ pub fn bench_frame(case: &FrameCase) -> Result<FrameReport> {
             warped: &warp,
             ground_truth: None,
         };
+        if run == 1 {
+            profile::set_enabled(case.profile);
+            profile::take();
+        }
         let prediction = model.predict(&ctx)?;
         if run == 0 {
             continue; // warm-up: first touches of the feature maps' memory
@@ -134,6 +147,9 @@ pub fn bench_frame(case: &FrameCase) -> Result<FrameReport> {
             outcome = Some((hole_fraction, prediction.tiles, score(&prediction.image), score(&fill)));
         }
     }
+    profile::set_enabled(false);
+    let operators = profile::take();
+    let network_profile = case.profile.then(|| operator_breakdown(&operators, &times["network"]));
     let (hole_fraction, tiles, d_mse, d_mse_fill) = outcome.expect("at least one timed run");
     let (tile_core, tile_margin) = match case.coverage {
         Coverage::Sparse(shape) => (Some(shape.core), Some(shape.margin)),
@@ -158,6 +174,7 @@ pub fn bench_frame(case: &FrameCase) -> Result<FrameReport> {
         stages: times.into_iter().map(|(name, t)| (name, stage_time(t))).collect(),
         d_mse,
         d_mse_fill,
+        network_profile,
     })
 }
 

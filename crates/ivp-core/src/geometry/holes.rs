@@ -17,6 +17,39 @@ pub enum PixelClass {
     Disocclusion = 2,
 }
 
+/// The pixels within `radius` (Chebyshev distance: a square of side `2 radius + 1`) of a pixel
+/// marked in `marked` (row-major, `width x height`).
+pub fn within_reach(marked: &[bool], width: usize, height: usize, radius: usize) -> Vec<bool> {
+    assert_eq!(marked.len(), width * height, "mask does not match {width}x{height}");
+    // Along the rows, then along the columns: each a running count of marks in the window.
+    let spread = |line: &[bool], out: &mut [bool]| {
+        let n = line.len();
+        let mut count = line[..radius.min(n)].iter().filter(|&&m| m).count();
+        for (i, o) in out.iter_mut().enumerate() {
+            if i + radius < n && line[i + radius] {
+                count += 1;
+            }
+            *o = count > 0;
+            if i >= radius && line[i - radius] {
+                count -= 1;
+            }
+        }
+    };
+    let mut rows = vec![false; marked.len()];
+    if width == 0 {
+        return rows;
+    }
+    rows.par_chunks_mut(width).zip(marked.par_chunks(width)).for_each(|(out, line)| spread(line, out));
+    let mut out = vec![false; marked.len()];
+    let (mut column, mut spread_column) = (vec![false; height], vec![false; height]);
+    for u in 0..width {
+        column.iter_mut().enumerate().for_each(|(v, c)| *c = rows[v * width + u]);
+        spread(&column, &mut spread_column);
+        spread_column.iter().enumerate().for_each(|(v, &m)| out[v * width + u] = m);
+    }
+    out
+}
+
 /// Per-pixel classes of a warped frame.
 #[derive(Clone, Debug, PartialEq)]
 pub struct HoleMask {
@@ -145,6 +178,24 @@ impl HoleMask {
 
 #[cfg(test)]
 mod tests {
+
+    #[test]
+    fn within_reach_matches_a_brute_force_search() {
+        for (w, h, radius) in [(1, 1, 0), (1, 1, 3), (7, 5, 0), (7, 5, 1), (13, 9, 2), (13, 9, 20), (40, 3, 4)] {
+            let marked: Vec<bool> = (0..w * h).map(|i| (i * 37 + 11) % 23 == 0).collect();
+            let got = within_reach(&marked, w, h, radius);
+            for v in 0..h {
+                for u in 0..w {
+                    let want = (0..h).any(|y| {
+                        (0..w).any(|x| marked[y * w + x] && u.abs_diff(x) <= radius && v.abs_diff(y) <= radius)
+                    });
+                    assert_eq!(got[v * w + u], want, "{w}x{h} radius {radius} at ({u}, {v})");
+                }
+            }
+        }
+        assert!(within_reach(&[], 0, 4, 2).is_empty());
+    }
+
     use super::*;
 
     #[test]

@@ -11,8 +11,8 @@ pub mod warp;
 
 pub use camera::{relative_pose, Intrinsics, WorldToCamera};
 pub use frame::{Direction, FrameView, Pixel};
-pub use holes::{HoleMask, PixelClass};
+pub use holes::{within_reach, HoleMask, PixelClass};
 pub use image::{DepthMap, Image, Rect, RgbImage, VectorField};
 pub use known_read::{sample_known, KnownRead};
 pub use nearest::NearestKnown;
-pub use warp::{splat_field, warp_forward, Warp};
+pub use warp::{splat_field, warp_forward, warp_known, Warp};

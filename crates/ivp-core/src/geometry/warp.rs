@@ -73,6 +73,12 @@ pub fn warp_forward(image: &RgbImage, depth: &DepthMap, k: &Intrinsics, transfor
     Warp { image: splat.values, depth: splat.depth, holes }
 }
 
+/// The known mask of [`warp_forward`] (where any source point lands) without moving any values:
+/// all that the temporal prior needs of the warp `n - 2 -> n`.
+pub fn warp_known(depth: &DepthMap, k: &Intrinsics, transform: &DMat4) -> Vec<bool> {
+    splat::<0>(depth, k, transform, None, |_| []).known
+}
+
 /// Moves any per-pixel field (e.g. infilling vectors) the way [`warp_forward`] moves colours.
 /// Returns the warped field (0 in holes) and the known mask of the warp.
 pub fn splat_field<const C: usize>(
@@ -836,6 +842,24 @@ mod tests {
             _ if (u / 9 + v / 5) % 3 == 0 => [1.0 + (u % 4) as f32 * 0.1],
             _ => [6.0 + v as f32 * 0.01],
         })
+    }
+
+    #[test]
+    fn warp_known_is_the_known_mask_of_the_warp() {
+        let (w, h) = (61, 37);
+        let img = textured(w, h);
+        let specials = [f32::NAN, 0.0, -1.0, f32::INFINITY, 1e-30, 1e30];
+        let depths = [
+            boxes_depth(w, h),
+            Image::from_fn(w, h, |u, v| [specials[(u + v * w) % specials.len()]]),
+            Image::filled(w, h, [f32::NAN]),
+        ];
+        for depth in &depths {
+            for t in poses() {
+                let known = warp_forward(&img, depth, &k(), &t).holes.known();
+                assert_eq!(warp_known(depth, &k(), &t), known, "{t:?}");
+            }
+        }
     }
 
     #[test]

@@ -8,12 +8,15 @@ use std::collections::BTreeMap;
 use std::sync::atomic::{AtomicUsize, Ordering};
 
 use candle_core::{DType, Device, Tensor};
+use rayon::prelude::*;
 
-use crate::geometry::{DepthMap, VectorField};
+use crate::geometry::{DepthMap, Rect, VectorField};
 use crate::inference::scaled::NetworkFrame;
 use crate::inference::tiles::{plan_tiles, Tile, TileShape};
 use crate::infill::{InfillError, VectorPredictor};
 use crate::nn::model::{IvpNet, NetInput};
+use crate::nn::ops::at_points::Pixel;
+use crate::nn::ops::profile;
 use crate::nn::tensor::to_batch_tensor;
 
 /// Tiles of one size per network call: bounds the memory of a batch (about 40 MB of feature maps
@@ -65,48 +68,87 @@ impl<'a> NetworkPredictor<'a> {
     /// The network's vectors on `tiles` of `frame`, written at the full-size pixels to predict;
     /// also how many of those got a NaN or infinite vector.
     fn run_tiles(&self, frame: &NetworkFrame<'_>, tiles: &[Tile], out: &mut VectorField) -> candle_core::Result<usize> {
-        let mut non_finite = 0;
         // Tiles of one input size share a batch; a BTreeMap keeps the order fixed.
         let mut by_size: BTreeMap<(usize, usize), Vec<&Tile>> = BTreeMap::new();
         for tile in tiles {
             by_size.entry((tile.input.width, tile.input.height)).or_default().push(tile);
         }
-        for ((tw, th), group) in by_size {
-            for batch in group.chunks(MAX_TILES_PER_BATCH) {
-                // Each tile's window of the network's inputs, stacked into one tensor per input.
-                let (priors, depths): (Vec<VectorField>, Vec<DepthMap>) =
-                    batch.iter().map(|t| frame.window(t.input)).unzip();
-                let masks: Vec<DepthMap> = batch.iter().map(|t| frame.mask(t.input)).collect();
-                let prior_t = to_batch_tensor(&priors.iter().collect::<Vec<_>>())?;
-                let depth_t = to_batch_tensor(&depths.iter().collect::<Vec<_>>())?;
-                let mask_t = to_batch_tensor(&masks.iter().collect::<Vec<_>>())?;
-                // The vector variants do not read the warped frame before compositing.
-                let unused = Tensor::zeros((batch.len(), 3, th, tw), DType::F32, &Device::Cpu)?;
-                let input = NetInput {
-                    prior: &prior_t,
-                    warped_depth: &depth_t,
-                    mask: &mask_t,
-                    warped: &unused,
-                    last: None,
-                    last_warped: None,
-                };
-                let vectors: Vec<f32> = self.net.raw_output(&input)?.flatten_all()?.to_vec1()?;
-                let plane = tw * th;
-                for (tile, values) in batch.iter().zip(vectors.chunks_exact(2 * plane)) {
-                    let (a, b) = values.split_at(plane);
-                    for core in &tile.cores {
-                        let (dx, dy) = (core.x - tile.input.x, core.y - tile.input.y);
-                        let at = |u: usize, v: usize| {
-                            let j = (v + dy) * tw + u + dx;
-                            [a[j], b[j]]
-                        };
-                        non_finite += frame.write_vectors(*core, at, out);
-                    }
+        let batches: Vec<&[&Tile]> = by_size.values().flat_map(|group| group.chunks(MAX_TILES_PER_BATCH)).collect();
+        // Batches in parallel as well as within: the small maps of a tile's deeper layers leave
+        // threads idle. Each batch's vectors do not depend on the others or on the threads.
+        let predicted: Vec<candle_core::Result<Vec<f32>>> =
+            batches.par_iter().map(|batch| self.run_batch(frame, batch)).collect();
+        let mut non_finite = 0;
+        for (batch, vectors) in batches.iter().zip(predicted) {
+            let vectors = vectors?;
+            let (tw, th) = (batch[0].input.width, batch[0].input.height);
+            let plane = tw * th;
+            for (tile, values) in batch.iter().zip(vectors.chunks_exact(2 * plane)) {
+                let (a, b) = values.split_at(plane);
+                for core in &tile.cores {
+                    let (dx, dy) = (core.x - tile.input.x, core.y - tile.input.y);
+                    let at = |u: usize, v: usize| {
+                        let j = (v + dy) * tw + u + dx;
+                        [a[j], b[j]]
+                    };
+                    non_finite += frame.write_vectors(*core, at, out);
                 }
             }
         }
         Ok(non_finite)
     }
+
+    /// The network's vectors on `batch` (tiles of one input size) at the cores' pixels to predict:
+    /// maps (B, 2, H, W) of the tiles' size, zero elsewhere.
+    fn run_batch(&self, frame: &NetworkFrame<'_>, batch: &[&Tile]) -> candle_core::Result<Vec<f32>> {
+        let (tw, th) = (batch[0].input.width, batch[0].input.height);
+        // Each tile's window of the network's inputs, stacked into one tensor per input.
+        let (prior_t, depth_t, mask_t, points) = profile::timed("tile inputs", || -> candle_core::Result<_> {
+            let (priors, depths): (Vec<VectorField>, Vec<DepthMap>) =
+                batch.iter().map(|t| frame.window(t.input)).unzip();
+            let masks: Vec<DepthMap> = batch.iter().map(|t| frame.mask(t.input)).collect();
+            Ok((
+                to_batch_tensor(&priors.iter().collect::<Vec<_>>())?,
+                to_batch_tensor(&depths.iter().collect::<Vec<_>>())?,
+                to_batch_tensor(&masks.iter().collect::<Vec<_>>())?,
+                points_to_predict(frame, batch),
+            ))
+        })?;
+        // The vector variants do not read the warped frame before compositing.
+        let unused = Tensor::zeros((batch.len(), 3, th, tw), DType::F32, &Device::Cpu)?;
+        let input = NetInput {
+            prior: &prior_t,
+            warped_depth: &depth_t,
+            mask: &mask_t,
+            warped: &unused,
+            last: None,
+            last_warped: None,
+        };
+        let values: Vec<f32> = self.net.raw_output_at(&input, &points)?.flatten_all()?.to_vec1()?;
+        let plane = tw * th;
+        let mut vectors = vec![0f32; batch.len() * 2 * plane];
+        for (p, v) in points.iter().zip(values.chunks_exact(2)) {
+            let at = 2 * p.image * plane + p.y * tw + p.x;
+            (vectors[at], vectors[at + plane]) = (v[0], v[1]);
+        }
+        Ok(vectors)
+    }
+}
+
+/// The pixels to predict in the cores of `batch` (tile `i` is image `i`), in the tiles' coordinates.
+fn points_to_predict(frame: &NetworkFrame<'_>, batch: &[&Tile]) -> Vec<Pixel> {
+    let width = frame.whole().width;
+    let mut points = Vec::new();
+    for (image, tile) in batch.iter().enumerate() {
+        for core in &tile.cores {
+            for y in core.y..core.y + core.height {
+                let holes = &frame.holes()[y * width..][core.x..core.x + core.width];
+                let row = holes.iter().enumerate().filter(|(_, &hole)| hole);
+                points.extend(row.map(|(u, _)| Pixel { image, y: y - tile.input.y, x: core.x + u - tile.input.x }));
+            }
+        }
+    }
+    points
 }
 
 impl VectorPredictor for NetworkPredictor<'_> {
@@ -129,6 +171,14 @@ impl VectorPredictor for NetworkPredictor<'_> {
                     dense()
                 } else {
                     self.tiles_run.fetch_add(tiles.len(), Ordering::Relaxed);
+                    tracing::debug!(
+                        tiles = tiles.len(),
+                        read = tiles.iter().map(|t| t.input.area()).sum::<usize>(),
+                        cores = tiles.iter().flat_map(|t| &t.cores).map(Rect::area).sum::<usize>(),
+                        frame = whole.area(),
+                        sizes = ?tiles.iter().map(|t| (t.input.width, t.input.height)).collect::<Vec<_>>(),
+                        "sparse pass"
+                    );
                     tiles
                 }
             }

@@ -13,9 +13,11 @@ use std::borrow::Cow;
 use rayon::prelude::*;
 
 use crate::geometry::image::is_valid_depth;
-use crate::geometry::{DepthMap, FrameView, Image, Intrinsics, Rect, RgbImage, VectorField};
+use crate::geometry::{
+    relative_pose, warp_known, within_reach, DepthMap, FrameView, Image, Intrinsics, Rect, RgbImage, VectorField,
+};
 use crate::infill::InfillContext;
-use crate::prior::target_prior;
+use crate::prior::{prior_from_last, GROUND_TRUTH_REACH};
 
 /// The factor by which frames are shrunk before the network sees them.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -177,23 +179,39 @@ impl<'a> NetworkFrame<'a> {
 /// Why: the prior's warps and searches cost as much as the rest of a 1080p frame together, while
 /// the network that reads it sees the frame shrunk anyway; measured on the shrunk frames, the
 /// prior also looks like the ones the network was trained with (frames of a few hundred rows).
+/// Only what the prior reads is shrunk: the depths of frames `n - 2` and `n` (warped whole), and
+/// the colours of frame `n` near the holes of the warp `n - 2 -> n` (the fictitious vectors'
+/// patches, [`GROUND_TRUTH_REACH`]); frame `n - 2`'s colours are not read at all.
 pub fn shrunk_temporal_prior(ctx: &InfillContext<'_>, factor: usize) -> Option<VectorField> {
     let before_last = ctx.before_last.as_ref()?;
     let s = factor.max(1);
-    if s == 1 {
-        return ctx.temporal_prior().map(|p| p.prior);
-    }
-    let shrink = |view: &FrameView<'_>| (shrink_image(view.image, s), shrink_depth(view.depth, s));
-    let ((image_b, depth_b), (image_n, depth_n)) = rayon::join(|| shrink(before_last), || shrink(&ctx.last));
-    let view_b = FrameView { image: &image_b, depth: &depth_b, pose: before_last.pose };
-    let view_n = FrameView { image: &image_n, depth: &depth_n, pose: ctx.last.pose };
     let holes = &ctx.warped.holes;
     let (w, h) = (holes.width(), holes.height());
     let known = holes.known();
+    let (depth_b, depth_n) = match s {
+        1 => (Cow::Borrowed(before_last.depth), Cow::Borrowed(ctx.last.depth)),
+        _ => {
+            let (b, n) = rayon::join(|| shrink_depth(before_last.depth, s), || shrink_depth(ctx.last.depth, s));
+            (Cow::Owned(b), Cow::Owned(n))
+        }
+    };
+    let k = shrink_intrinsics(ctx.intrinsics, s);
+    let known_n = warp_known(&depth_b, &k, &relative_pose(before_last.pose, ctx.last.pose));
+    let image_n = match s {
+        1 => Cow::Borrowed(ctx.last.image),
+        _ => {
+            let holes_n: Vec<bool> = known_n.iter().map(|&k| !k).collect();
+            let read = within_reach(&holes_n, depth_n.width(), depth_n.height(), GROUND_TRUTH_REACH);
+            Cow::Owned(shrink_image_at(ctx.last.image, s, &read))
+        }
+    };
+    let view_n = FrameView { image: &image_n, depth: &depth_n, pose: ctx.last.pose };
+    if s == 1 {
+        return Some(prior_from_last(&known_n, &view_n, ctx.target_pose, &k, &known));
+    }
     // A block is known when all its pixels are (as in NetworkFrame, where any hole makes a hole).
     let coarse_known: Vec<bool> = blocks_with(w, h, s, &known, false).into_iter().map(|hole| !hole).collect();
-    let k = shrink_intrinsics(ctx.intrinsics, s);
-    let coarse = target_prior(&view_b, &view_n, ctx.target_pose, &k, &coarse_known).prior;
+    let coarse = prior_from_last(&known_n, &view_n, ctx.target_pose, &k, &coarse_known);
     Some(grow_vectors(&coarse, s, w, h, &known))
 }
 
@@ -223,10 +241,17 @@ pub fn shrink_intrinsics(k: &Intrinsics, s: usize) -> Intrinsics {
 
 /// Each block of `s x s` pixels (partial at the right and bottom) becomes its mean colour.
 pub fn shrink_image(image: &RgbImage, s: usize) -> RgbImage {
+    shrink_image_at(image, s, &vec![true; image.width().div_ceil(s) * image.height().div_ceil(s)])
+}
+
+/// [`shrink_image`] at the blocks marked in `at` (row-major, of the shrunk size) only; the others
+/// are 0.
+fn shrink_image_at(image: &RgbImage, s: usize, at: &[bool]) -> RgbImage {
     shrink_blocks(
         image,
         s,
         shrunk_whole(image, s),
+        Some(at),
         |(sum, n): &mut ([f64; 3], usize), p| {
             (0..3).for_each(|c| sum[c] += p[c] as f64);
             *n += 1;
@@ -247,6 +272,7 @@ fn shrink_depth_in(depth: &DepthMap, s: usize, window: Rect) -> DepthMap {
         depth,
         s,
         window,
+        None,
         |(sum, n, sky): &mut (f64, usize, bool), [z]| {
             if is_valid_depth(z) {
                 *sum += z as f64;
@@ -273,6 +299,7 @@ fn shrink_vectors_in(field: &VectorField, s: usize, window: Rect) -> VectorField
         field,
         s,
         window,
+        None,
         |(sum, n): &mut ([f64; 2], usize), [x, y]| {
             if x != 0.0 || y != 0.0 {
                 *sum = [sum[0] + x as f64, sum[1] + y as f64];
@@ -311,24 +338,34 @@ fn shrink_blocks<const C: usize, A: Default + Clone + Send>(
     image: &Image<C>,
     s: usize,
     window: Rect,
+    at: Option<&[bool]>,
     add: impl Fn(&mut A, [f32; C]) + Sync,
     finish: impl Fn(A) -> [f32; C] + Sync,
 ) -> Image<C> {
     let (w, h) = (image.width(), image.height());
     let r = window;
     assert!((r.x + r.width) * s < w + s && (r.y + r.height) * s < h + s, "window outside the shrunk frame");
+    assert!(at.is_none_or(|at| at.len() == r.area()), "block mask does not match the window");
     let columns = r.x * s..((r.x + r.width) * s).min(w);
     let mut out = Image::zeros(r.width, r.height);
     out.pixels_mut().par_chunks_mut(r.width.max(1)).enumerate().for_each(|(row, cells)| {
         let cv = r.y + row;
+        let marks = at.map(|at| &at[row * r.width..][..r.width]);
+        if marks.is_some_and(|m| !m.contains(&true)) {
+            return;
+        }
+        let marked = |cu: usize| marks.is_none_or(|m| m[cu]);
         let mut accumulators = vec![A::default(); r.width];
         for v in cv * s..((cv + 1) * s).min(h) {
-            for (acc, pixels) in accumulators.iter_mut().zip(image.row(v)[columns.clone()].chunks(s)) {
+            let blocks = accumulators.iter_mut().zip(image.row(v)[columns.clone()].chunks(s)).enumerate();
+            for (_, (acc, pixels)) in blocks.filter(|(cu, _)| marked(*cu)) {
                 pixels.iter().for_each(|&p| add(acc, p));
             }
         }
-        for (cell, acc) in cells.iter_mut().zip(accumulators) {
-            *cell = finish(acc);
+        for (cu, (cell, acc)) in cells.iter_mut().zip(accumulators).enumerate() {
+            if marked(cu) {
+                *cell = finish(acc);
+            }
         }
     });
     out

@@ -30,6 +30,8 @@ use candle_nn::{Init, VarBuilder, VarMap};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
+use crate::nn::ops::at_points::{decoder_step_at, pixels_read, scatter, Pixel};
+use crate::nn::ops::upsampled_conv::conv2d_of_upsampled;
 use crate::nn::ops::{conv2d, conv2d_relu, sample_bilinear, upsample_bilinear_to, upsample_concat};
 
 /// The encoder widths at width multiplier 1 (the paper's).
@@ -195,6 +197,23 @@ impl Conv {
         let kernel = self.weight.dim(3)?;
         conv2d_relu(x, &self.weight, Some(&self.bias), self.stride, kernel / 2)
     }
+
+    /// This convolution (stride 1) of `x` upsampled bilinearly by 2 ([`conv2d_of_upsampled`]).
+    fn of_upsampled(&self, x: &Tensor, relu: bool) -> Result<Tensor> {
+        conv2d_of_upsampled(x, &self.weight, &self.bias, relu)
+    }
+
+    /// A decoder step at `points` of the skip's size only: (N, Cout) ([`decoder_step_at`]).
+    fn values_at(&self, coarse: &Tensor, skip: &Tensor, points: &[Pixel], relu: bool) -> Result<Tensor> {
+        decoder_step_at(coarse, skip, &self.weight, &self.bias, relu, points)
+    }
+
+    /// [`Conv::values_at`] as a map of the skip's size, zero away from `points`.
+    fn forward_at(&self, coarse: &Tensor, skip: &Tensor, points: &[Pixel], relu: bool) -> Result<Tensor> {
+        let values = self.values_at(coarse, skip, points, relu)?;
+        let (b, _, h, w) = skip.dims4()?;
+        scatter(&values, points, (b, self.weight.dim(0)?, h, w))
+    }
 }
 
 /// Normalises the warped depth (0 in holes, in scene units) to (0, 1).
@@ -225,6 +244,23 @@ impl DepthHead {
         let (_, _, xh, xw) = x.dims4()?;
         let x = self.c3.forward_relu(&upsample_bilinear_to(&x, 2 * xh, 2 * xw)?)?;
         let x = self.c4.forward(&upsample_bilinear_to(&x, h, w)?)?;
+        candle_nn::ops::sigmoid(&x)
+    }
+
+    /// [`DepthHead::forward`] for inference, equal up to rounding: each upsampling by 2 and the
+    /// convolution after it in one step ([`conv2d_of_upsampled`]: half the multiply-adds, and no
+    /// upsampled map). No gradient.
+    pub fn infer(&self, depth: &Tensor) -> Result<Tensor> {
+        let (_, _, h, w) = depth.dims4()?;
+        let x = self.c1.forward_relu(depth)?;
+        let x = self.c2.forward_relu(&x)?;
+        let x = self.c3.of_upsampled(&x, true)?;
+        let (_, _, xh, xw) = x.dims4()?;
+        // The last upsampling is by 2 only when the depth map's sides are even.
+        let x = match (h, w) == (2 * xh, 2 * xw) {
+            true => self.c4.of_upsampled(&x, false)?,
+            false => self.c4.forward(&upsample_bilinear_to(&x, h, w)?)?,
+        };
         candle_nn::ops::sigmoid(&x)
     }
 }
@@ -335,7 +371,7 @@ impl IvpNet {
     /// The network's output before any compositing: vectors (B, 2, H, W) or RGB (B, 3, H, W),
     /// multiplied by the mask.
     pub fn raw_output(&self, input: &NetInput<'_>) -> Result<Tensor> {
-        let x = self.unet_input(input)?;
+        let x = self.unet_input(input, false)?;
         let x1 = self.e1.forward_relu(&x)?;
         let x2 = self.e2.forward_relu(&x1)?;
         let x3 = self.e3.forward_relu(&x2)?;
@@ -353,6 +389,35 @@ impl IvpNet {
         y.broadcast_mul(input.mask)
     }
 
+    /// [`IvpNet::raw_output`] at `points` only, before the mask: one row of output channels per
+    /// point, (N, C). For inference, where vectors are read at the pixels to predict only. The
+    /// encoder runs over the whole input; each decoder level only at the pixels that the points
+    /// read through the levels above it ([`pixels_read`]).
+    pub fn raw_output_at(&self, input: &NetInput<'_>, points: &[Pixel]) -> Result<Tensor> {
+        let x = self.unet_input(input, true)?;
+        let x1 = self.e1.forward_relu(&x)?;
+        let x2 = self.e2.forward_relu(&x1)?;
+        let x3 = self.e3.forward_relu(&x2)?;
+        let x4 = self.e4.forward_relu(&x3)?;
+        let x5 = self.e5.forward_relu(&x4)?;
+        // The pixels of each decoder level that the points need, from the top level down.
+        let (b, _, h, w) = x1.dims4()?;
+        let hw = |t: &Tensor| -> Result<(usize, usize)> { Ok((t.dim(2)?, t.dim(3)?)) };
+        let (s2, s3, s4) = (hw(&x2)?, hw(&x3)?, hw(&x4)?);
+        let p8 = pixels_read(points, (h, w), (b, s2.0, s2.1));
+        let p7 = pixels_read(&p8, s2, (b, s3.0, s3.1));
+        let p6 = pixels_read(&p7, s3, (b, s4.0, s4.1));
+        let y = self.d6.forward_at(&x5, &x4, &p6, true)?;
+        let y = self.d7.forward_at(&y, &x3, &p7, true)?;
+        let y = self.d8.forward_at(&y, &x2, &p8, true)?;
+        let y = self.d9.values_at(&y, &x1, points, false)?;
+        if self.config.variant.predicts_vectors() {
+            Ok(y)
+        } else {
+            candle_nn::ops::sigmoid(&y)
+        }
+    }
+
     /// The predicted frame and vectors: the warped frame with its masked pixels replaced by the
     /// bilinear read at their vectors (ALGORITHMS.md §6.3, training form) or by the predicted RGB.
     pub fn forward(&self, input: &NetInput<'_>) -> Result<NetOutput> {
@@ -368,8 +433,9 @@ impl IvpNet {
     }
 
     /// The U-Net's input channels for this variant.
-    fn unet_input(&self, input: &NetInput<'_>) -> Result<Tensor> {
+    fn unet_input(&self, input: &NetInput<'_>, inference: bool) -> Result<Tensor> {
         let depth = match &self.depth {
+            Some(head) if inference => head.infer(input.warped_depth)?,
             Some(head) => head.forward(input.warped_depth)?,
             None => input.warped_depth.zeros_like()?,
         };
@@ -453,6 +519,59 @@ mod tests {
             last_warped: Some(&t[5]),
         })
         .unwrap()
+    }
+
+    #[test]
+    fn the_depth_head_at_inference_equals_its_training_form() {
+        let (net, _) = IvpNet::seeded(ModelConfig::new(Variant::Full, 0.125), 5).unwrap();
+        let head = net.depth.as_ref().unwrap();
+        // Even sides (every upsampling by 2), odd sides (the last one is not), tiny maps.
+        for (h, w) in [(48, 64), (37, 29), (16, 16), (4, 4), (1, 3)] {
+            let depth = inputs(2, h, w, 6)[1].clone();
+            let want: Vec<f32> = head.forward(&depth).unwrap().flatten_all().unwrap().to_vec1().unwrap();
+            let got: Vec<f32> = head.infer(&depth).unwrap().flatten_all().unwrap().to_vec1().unwrap();
+            assert_eq!(got.len(), want.len());
+            let worst = got.iter().zip(&want).map(|(a, b)| (a - b).abs()).fold(0f32, f32::max);
+            assert!(worst < 1e-5, "{h}x{w}: largest difference {worst}");
+        }
+    }
+
+    #[test]
+    fn the_output_at_points_equals_the_whole_output_there() {
+        for variant in Variant::ALL {
+            let (net, _) = IvpNet::seeded(ModelConfig::new(variant, 0.125), 3).unwrap();
+            // Odd sizes: the decoder crops its upsampled maps at every level.
+            let (b, h, w) = (2, 37, 29);
+            let t = inputs(b, h, w, 4);
+            let input = NetInput {
+                prior: &t[0],
+                warped_depth: &t[1],
+                mask: &t[2],
+                warped: &t[3],
+                last: Some(&t[4]),
+                last_warped: Some(&t[5]),
+            };
+            let whole: Vec<f32> = net.raw_output(&input).unwrap().flatten_all().unwrap().to_vec1().unwrap();
+            let mask: Vec<f32> = t[2].flatten_all().unwrap().to_vec1().unwrap();
+            // The masked pixels, the corners and a row along the bottom edge.
+            let points: Vec<Pixel> = (0..b)
+                .flat_map(|image| (0..h).flat_map(move |y| (0..w).map(move |x| Pixel { image, y, x })))
+                .filter(|p| mask[(p.image * h + p.y) * w + p.x] == 1.0 || p.y == h - 1 || p.x % (w - 1) == 0)
+                .collect();
+            let at: Vec<f32> = net.raw_output_at(&input, &points).unwrap().flatten_all().unwrap().to_vec1().unwrap();
+            let c = at.len() / points.len();
+            let mut worst = 0f32;
+            for (p, values) in points.iter().zip(at.chunks_exact(c)) {
+                let m = mask[(p.image * h + p.y) * w + p.x];
+                for (ch, v) in values.iter().enumerate() {
+                    // raw_output is multiplied by the mask; raw_output_at is not.
+                    let want = whole[((p.image * c + ch) * h + p.y) * w + p.x];
+                    worst = worst.max((v * m - want).abs());
+                }
+            }
+            assert!(worst < 1e-4, "{variant}: largest difference {worst}");
+            assert!(net.raw_output_at(&input, &[]).unwrap().dims()[0] == 0);
+        }
     }
 
     #[test]

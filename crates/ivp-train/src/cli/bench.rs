@@ -78,6 +78,9 @@ pub enum BenchCommand {
         seed: u64,
         #[command(flatten)]
         coverage: CoverageArgs,
+        /// Add the network's milliseconds per run by operator.
+        #[arg(long)]
+        profile: bool,
     },
 }
 
@@ -93,7 +96,18 @@ pub fn run_bench(command: BenchCommand) -> Result<()> {
             ensure!(height >= 16 && width >= 16 && runs > 0, "--height, --width must be >= 16 and --runs >= 1");
             bench_infer(&InferCase { height, width, runs, width_mult, profile })?
         }
-        BenchCommand::Frame { height, width, model, width_mult, depth_head_mult, iterations, runs, seed, coverage } => {
+        BenchCommand::Frame {
+            height,
+            width,
+            model,
+            width_mult,
+            depth_head_mult,
+            iterations,
+            runs,
+            seed,
+            coverage,
+            profile,
+        } => {
             ensure_width_mult(width_mult)?;
             check_depth_head_mult(depth_head_mult).map_err(anyhow::Error::msg)?;
             ensure!(height >= 16 && width >= 16, "--height and --width must be at least 16");
@@ -108,6 +122,7 @@ pub fn run_bench(command: BenchCommand) -> Result<()> {
                 scale: coverage.scale,
                 runs,
                 seed,
+                profile,
             };
             let report = bench_frame(&case)?;
             println!("{}", serde_json::to_string(&report)?);

@@ -342,6 +342,23 @@ unsafe fn matmul(m: usize, n: usize, k: usize, dst: Mat, accumulate: bool, lhs: 
     })
 }
 
+/// `out (m x n) += cols^T weight^T` for row-major `cols` (k x m: taps by pixels, an im2col
+/// matrix) and `weight` (n x k: a convolution's (Cout, Cin k k)), on the calling thread: the
+/// outputs of `m` pixels, pixel-major.
+pub(crate) fn add_pixels_times_weights(m: usize, n: usize, k: usize, cols: &[f32], weight: &[f32], out: &mut [f32]) {
+    assert!(cols.len() == k * m && weight.len() == n * k && out.len() == m * n, "add_pixels_times_weights: shapes");
+    if m == 0 || n == 0 {
+        return;
+    }
+    // SAFETY: the slices hold the matrices with these strides (checked above) and `out` is
+    // borrowed mutably, so it overlaps neither operand.
+    unsafe {
+        let (dst, lhs, rhs) =
+            (Mat::new(out.as_mut_ptr(), n, 1), Mat::new(cols.as_ptr(), 1, m), Mat::new(weight.as_ptr(), 1, k));
+        matmul(m, n, k, dst, true, lhs, rhs)
+    }
+}
+
 /// Runs `f` with subnormal floats flushed to zero on this thread (see the module documentation).
 fn flushing_denormals<R>(f: impl FnOnce() -> R) -> R {
     // SAFETY: the floating-point mode changes for this thread only and is restored when `f`

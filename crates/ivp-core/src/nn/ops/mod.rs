@@ -1,10 +1,12 @@
 //! Neural-network operators for candle that are faster on CPU than candle's own.
 
+pub mod at_points;
 pub mod conv2d;
 pub mod gaussian;
 pub mod profile;
 pub mod resize;
 pub mod sampler;
+pub mod upsampled_conv;
 
 pub use conv2d::{conv2d, conv2d_relu};
 pub use gaussian::gaussian_blur;

@@ -1,0 +1,371 @@
+//! A convolution of a map upsampled bilinearly by 2, computed on the map itself, for inference:
+//! the depth head's `conv(upsample(x))` pairs (ALGORITHMS.md §6.1).
+//!
+//! Upsampling by 2 with half-pixel centres makes each output pixel `0.75 x[j] + 0.25 x[j -+ 1]`
+//! of its input row and column, so a `k x k` convolution of the upsampled map is, for each of
+//! its four output phases (row and column parity), a smaller convolution of the input: for
+//! `k = 7`, `5 x 5`. The four phases together cost half the multiply-adds of the direct way, and
+//! the upsampled map (the largest map of the depth head) is never built.
+//!
+//! At the map's border the two ways part: the direct convolution reads zeros beyond the
+//! upsampled map, the phases read the upsampled map repeated (the input, padded by repeating its
+//! edge, interpolates to its edge value there). The border pixels, within `k / 2` of the edge, are
+//! corrected by subtracting what the taps beyond the edge added, so the result equals the direct
+//! way up to the order of the sums.
+
+use candle_core::{bail, Device, Result, Tensor};
+use rayon::prelude::*;
+
+use crate::nn::ops::{conv2d, profile};
+
+/// `conv2d(upsample_bilinear_to(x, 2 h, 2 w), weight, bias, stride 1, padding k / 2)`, then a
+/// ReLU if `relu`, for `x` (B, Cin, h, w) and an odd square `weight` (Cout, Cin, k, k). No
+/// gradient: for inference.
+pub fn conv2d_of_upsampled(x: &Tensor, weight: &Tensor, bias: &Tensor, relu: bool) -> Result<Tensor> {
+    let (b, cin, h, w) = x.dims4()?;
+    let (cout, wcin, k, kw) = weight.dims4()?;
+    if wcin != cin || k != kw || k % 2 == 0 || bias.dims() != [cout] {
+        bail!("conv2d_of_upsampled: input {:?}, kernel {:?}, bias {:?}", x.dims(), weight.dims(), bias.dims());
+    }
+    if h == 0 || w == 0 {
+        bail!("conv2d_of_upsampled: empty input {:?}", x.dims());
+    }
+    profile::timed("conv2d of upsampled", || {
+        let weights: Vec<f32> = weight.flatten_all()?.to_vec1()?;
+        let (phases, reach) = phase_kernels(&weights, cout, cin, k);
+        let side = 2 * reach + 1;
+        let phases = Tensor::from_vec(phases, (4 * cout, cin, side, side), &Device::Cpu)?;
+        let bias4 = Tensor::cat(&[bias; 4], 0)?;
+        let padded = pad_by_repeating(x, reach)?;
+        // (B, 4 Cout, h, w): channel `phase * Cout + co`.
+        let by_phase: Vec<f32> = conv2d(&padded, &phases, Some(&bias4), 1, 0)?.flatten_all()?.to_vec1()?;
+        let input: Vec<f32> = x.flatten_all()?.to_vec1()?;
+        let (height, width) = (2 * h, 2 * w);
+        let border = Border::new(height, width, k / 2);
+        // What the taps beyond the edge added at each border pixel, for every output channel.
+        let edges: Vec<Edges> = input.chunks_exact(cin * h * w).map(|x| Edges::new(x, cin, h, w)).collect();
+        let kernels = EdgeKernels::new(&weights, cout, cin, k);
+        let pixels: Vec<(usize, usize, usize)> =
+            (0..b).flat_map(|image| border.pixels().map(move |(oy, ox)| (image, oy, ox))).collect();
+        let mut corrections = vec![0f32; pixels.len() * cout];
+        corrections
+            .par_chunks_mut(cout)
+            .zip(&pixels)
+            .for_each(|(sum, &(image, oy, ox))| beyond_the_edge(&edges[image], &kernels, (oy, ox), sum));
+        // Each output row from its two phases, less the border's corrections, then the ReLU.
+        let mut out = vec![0f32; b * cout * height * width];
+        out.par_chunks_mut(width).enumerate().for_each(|(row, pixels)| {
+            let (plane, oy) = (row / height, row % height);
+            let (image, co) = (plane / cout, plane % cout);
+            let phase_row = |px: usize| {
+                let channel = ((oy % 2) * 2 + px) * cout + co;
+                &by_phase[((image * 4 * cout + channel) * h + oy / 2) * w..][..w]
+            };
+            for ((pair, even), odd) in pixels.chunks_mut(2).zip(phase_row(0)).zip(phase_row(1)) {
+                (pair[0], pair[1]) = (*even, *odd);
+            }
+            let first = image * border.per_image + border.row_start[oy];
+            for (i, v) in border.in_row(oy, pixels).enumerate() {
+                *v -= corrections[(first + i) * cout + co];
+            }
+            if relu {
+                pixels.iter_mut().for_each(|v| *v = v.max(0.0));
+            }
+        });
+        Tensor::from_vec(out, (b, cout, height, width), &Device::Cpu)
+    })
+}
+
+/// The pixels of a `height x width` map within `r` of its edge, row-major: whole rows in the top
+/// and bottom bands (and everywhere when the map is at most `2 r` wide), else the first and last
+/// `r` pixels of a row.
+struct Border {
+    height: usize,
+    width: usize,
+    r: usize,
+    /// Index of each row's first border pixel among those of the map.
+    row_start: Vec<usize>,
+    /// Border pixels of the map.
+    per_image: usize,
+}
+
+impl Border {
+    fn new(height: usize, width: usize, r: usize) -> Self {
+        let mut border = Self { height, width, r, row_start: Vec::with_capacity(height), per_image: 0 };
+        for oy in 0..height {
+            border.row_start.push(border.per_image);
+            border.per_image += if border.whole_row(oy) { width } else { 2 * r };
+        }
+        border
+    }
+
+    fn whole_row(&self, oy: usize) -> bool {
+        oy < self.r || oy + self.r >= self.height || self.width <= 2 * self.r
+    }
+
+    fn pixels(&self) -> impl Iterator<Item = (usize, usize)> + '_ {
+        (0..self.height)
+            .flat_map(move |oy| (0..self.width).map(move |ox| (oy, ox)))
+            .filter(|&(oy, ox)| self.whole_row(oy) || ox < self.r || ox + self.r >= self.width)
+    }
+
+    /// The border pixels of `row` (row `oy` of the map), in order.
+    fn in_row<'a>(&self, oy: usize, row: &'a mut [f32]) -> impl Iterator<Item = &'a mut f32> {
+        let (first, rest) = row.split_at_mut(if self.whole_row(oy) { self.width } else { self.r });
+        let last_start = if self.whole_row(oy) { rest.len() } else { rest.len() - self.r };
+        first.iter_mut().chain(rest[last_start..].iter_mut())
+    }
+}
+
+/// The four phase kernels of `weights` (Cout, Cin, k, k), phase `py * 2 + px` first, then output
+/// channel: `(4 Cout, Cin, 2 reach + 1, 2 reach + 1)` row-major, and `reach`.
+fn phase_kernels(weights: &[f32], cout: usize, cin: usize, k: usize) -> (Vec<f32>, usize) {
+    let r = k / 2;
+    // Output pixel 2 j + p reads upsampled pixel 2 j + p + t, t in -r..=r; that one is
+    // 0.75 x[m] + 0.25 x[m - 1] (even, 2 m) or 0.75 x[m] + 0.25 x[m + 1] (odd, 2 m + 1).
+    let reach = (r + 2) / 2;
+    let side = 2 * reach + 1;
+    // mix[p][t][d]: weight of input pixel j + d - reach in upsampled pixel 2 j + p + t - r.
+    let mix: Vec<Vec<Vec<f32>>> = (0..2)
+        .map(|p| {
+            (0..k)
+                .map(|t| {
+                    let q = (p + t) as isize - r as isize;
+                    let (m, odd) = (q.div_euclid(2), q.rem_euclid(2) == 1);
+                    let mut row = vec![0f32; side];
+                    let near = (m + reach as isize) as usize;
+                    let far = if odd { near + 1 } else { near - 1 };
+                    row[near] += 0.75;
+                    row[far] += 0.25;
+                    row
+                })
+                .collect()
+        })
+        .collect();
+    let mut phases = vec![0f32; 4 * cout * cin * side * side];
+    let mut along_x = vec![0f32; k * side];
+    for (co, ci) in (0..cout).flat_map(|co| (0..cin).map(move |ci| (co, ci))) {
+        let kernel = &weights[(co * cin + ci) * k * k..][..k * k];
+        for px in 0..2 {
+            // Mixed along the columns first, then along the rows: the kernel is (ty, tx).
+            along_x.fill(0.0);
+            for (ty, row) in kernel.chunks_exact(k).enumerate() {
+                for (kv, mix_x) in row.iter().zip(&mix[px]) {
+                    along_x[ty * side..][..side].iter_mut().zip(mix_x).for_each(|(a, m)| *a += kv * m);
+                }
+            }
+            for (py, mix_py) in mix.iter().enumerate() {
+                let phase = py * 2 + px;
+                let out = &mut phases[((phase * cout + co) * cin + ci) * side * side..][..side * side];
+                for (row, mix_y) in along_x.chunks_exact(side).zip(mix_py) {
+                    for (dy, &my) in mix_y.iter().enumerate().filter(|(_, &m)| m != 0.0) {
+                        out[dy * side..][..side].iter_mut().zip(row).for_each(|(o, a)| *o += my * a);
+                    }
+                }
+            }
+        }
+    }
+    (phases, reach)
+}
+
+/// `x` (B, C, h, w) padded by `pad` pixels on every side, each copying the nearest edge pixel.
+fn pad_by_repeating(x: &Tensor, pad: usize) -> Result<Tensor> {
+    let (b, c, h, w) = x.dims4()?;
+    let values: Vec<f32> = x.flatten_all()?.to_vec1()?;
+    let (ph, pw) = (h + 2 * pad, w + 2 * pad);
+    let mut out = vec![0f32; b * c * ph * pw];
+    out.par_chunks_mut(ph * pw).zip(values.par_chunks(h * w)).for_each(|(out, plane)| {
+        for (y, row) in out.chunks_mut(pw).enumerate() {
+            let source = &plane[(y.saturating_sub(pad)).min(h - 1) * w..][..w];
+            for (x, v) in row.iter_mut().enumerate() {
+                *v = source[x.saturating_sub(pad).min(w - 1)];
+            }
+        }
+    });
+    Tensor::from_vec(out, (b, c, ph, pw), &Device::Cpu)
+}
+
+/// The upsampled map's outermost rows and columns, each pixel's channels together: all that the
+/// taps beyond its edge read when it is taken as repeated there.
+struct Edges {
+    cin: usize,
+    height: usize,
+    width: usize,
+    top: Vec<f32>,
+    bottom: Vec<f32>,
+    left: Vec<f32>,
+    right: Vec<f32>,
+}
+
+impl Edges {
+    /// Of `x` (Cin, h, w) upsampled by 2.
+    fn new(x: &[f32], cin: usize, h: usize, w: usize) -> Self {
+        let (height, width) = (2 * h, 2 * w);
+        let plane = |c: usize| &x[c * h * w..][..h * w];
+        let line = |pixels: Vec<(usize, usize)>| -> Vec<f32> {
+            pixels.into_iter().flat_map(|(y, x)| (0..cin).map(move |c| upsampled(plane(c), h, w, y, x))).collect()
+        };
+        Self {
+            cin,
+            height,
+            width,
+            top: line((0..width).map(|x| (0, x)).collect()),
+            bottom: line((0..width).map(|x| (height - 1, x)).collect()),
+            left: line((0..height).map(|y| (y, 0)).collect()),
+            right: line((0..height).map(|y| (y, width - 1)).collect()),
+        }
+    }
+
+    /// The channels at `(y, x)`, a pixel on the edge.
+    fn at(&self, y: usize, x: usize) -> &[f32] {
+        let (line, i) = if y == 0 {
+            (&self.top, x)
+        } else if y + 1 == self.height {
+            (&self.bottom, x)
+        } else if x == 0 {
+            (&self.left, y)
+        } else {
+            (&self.right, y)
+        };
+        &line[i * self.cin..][..self.cin]
+    }
+}
+
+/// Sums of the kernel's taps over the rows (or columns) that fall beyond the edge, for every
+/// number of them: the taps beyond one edge all read that edge's pixel, so they act as one.
+/// Each is laid out (k, Cin, Cout): a tap's weights for every output channel together.
+struct EdgeKernels {
+    k: usize,
+    cin: usize,
+    cout: usize,
+    /// `[n - 1]`: the first `n` rows summed, as a row of `k` taps along the columns.
+    top: Vec<Vec<f32>>,
+    /// `[n - 1]`: the last `n` rows summed.
+    bottom: Vec<Vec<f32>>,
+    /// `[n - 1]`: the first `n` columns summed, as a column of `k` taps along the rows.
+    left: Vec<Vec<f32>>,
+    /// `[n - 1]`: the last `n` columns summed.
+    right: Vec<Vec<f32>>,
+}
+
+impl EdgeKernels {
+    fn new(weights: &[f32], cout: usize, cin: usize, k: usize) -> Self {
+        let r = k / 2;
+        let at = |co: usize, ci: usize, ty: usize, tx: usize| weights[((co * cin + ci) * k + ty) * k + tx];
+        // Taps `t` of the summed kernel: rows (or columns) `lines` summed at position `t` across.
+        let summed = |lines: std::ops::Range<usize>, along_rows: bool| -> Vec<f32> {
+            let mut out = vec![0f32; k * cin * cout];
+            for t in 0..k {
+                for ci in 0..cin {
+                    for co in 0..cout {
+                        out[(t * cin + ci) * cout + co] =
+                            lines.clone().map(|l| if along_rows { at(co, ci, l, t) } else { at(co, ci, t, l) }).sum();
+                    }
+                }
+            }
+            out
+        };
+        Self {
+            k,
+            cin,
+            cout,
+            top: (1..=r).map(|n| summed(0..n, true)).collect(),
+            bottom: (1..=r).map(|n| summed(k - n..k, true)).collect(),
+            left: (1..=r).map(|n| summed(0..n, false)).collect(),
+            right: (1..=r).map(|n| summed(k - n..k, false)).collect(),
+        }
+    }
+}
+
+/// Adds to `sum` (one per output channel) what the taps that fall beyond the upsampled map add to
+/// output pixel `(oy, ox)` when the map is taken as repeated past its edge: the rows beyond the
+/// top or bottom edge (all their columns), then the columns beyond the left or right edge (the
+/// rows inside only).
+fn beyond_the_edge(edges: &Edges, kernels: &EdgeKernels, (oy, ox): (usize, usize), sum: &mut [f32]) {
+    let (k, cin, cout) = (kernels.k, kernels.cin, kernels.cout);
+    let r = k / 2;
+    let (height, width) = (edges.height, edges.width);
+    // How many of the rows (columns) of taps fall beyond each edge.
+    let (above, below) = (r.saturating_sub(oy).min(k), (oy + r + 1).saturating_sub(height).min(k));
+    let (before, after) = (r.saturating_sub(ox).min(k), (ox + r + 1).saturating_sub(width).min(k));
+    let mut add = |taps: &[f32], t: usize, channels: &[f32]| {
+        let weights = &taps[t * cin * cout..][..cin * cout];
+        for (weights, &u) in weights.chunks_exact(cout).zip(channels) {
+            sum.iter_mut().zip(weights).for_each(|(s, w)| *s += w * u);
+        }
+    };
+    let clamp = |i: isize, n: usize| i.clamp(0, n as isize - 1) as usize;
+    for (n, kernels, y) in [(above, &kernels.top, 0), (below, &kernels.bottom, height - 1)] {
+        if n > 0 {
+            for tx in 0..k {
+                add(&kernels[n - 1], tx, edges.at(y, clamp((ox + tx) as isize - r as isize, width)));
+            }
+        }
+    }
+    let inside_rows = above..k - below;
+    for (n, kernels, x) in [(before, &kernels.left, 0), (after, &kernels.right, width - 1)] {
+        if n > 0 {
+            for ty in inside_rows.clone() {
+                add(&kernels[n - 1], ty, edges.at(oy + ty - r, x));
+            }
+        }
+    }
+}
+
+/// Pixel `(y, x)` of the `h x w` plane upsampled bilinearly by 2 with half-pixel centres (as
+/// [`crate::nn::ops::upsample_bilinear_to`]).
+fn upsampled(plane: &[f32], h: usize, w: usize, y: usize, x: usize) -> f32 {
+    let taps = |i: usize, n: usize| {
+        let m = i / 2;
+        let other = if i.is_multiple_of(2) { m.saturating_sub(1) } else { (m + 1).min(n - 1) };
+        (m, other)
+    };
+    let ((y0, y1), (x0, x1)) = (taps(y, h), taps(x, w));
+    let at = |y: usize, x: usize| plane[y * w + x];
+    0.75 * (0.75 * at(y0, x0) + 0.25 * at(y0, x1)) + 0.25 * (0.75 * at(y1, x0) + 0.25 * at(y1, x1))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::nn::ops::test_util::{flat, random};
+    use crate::nn::ops::{conv2d_relu, upsample_bilinear_to};
+
+    #[test]
+    fn equals_upsampling_then_convolving_at_every_pixel() {
+        for (b, cin, cout, h, w, k) in [
+            (2, 3, 4, 5, 7, 7),
+            (1, 2, 1, 1, 1, 7),
+            (1, 1, 2, 2, 3, 7),
+            (1, 2, 2, 9, 1, 7),
+            (1, 2, 2, 1, 9, 7),
+            (1, 4, 3, 9, 4, 3),
+            (2, 2, 2, 6, 6, 5),
+            (1, 3, 2, 8, 11, 1),
+        ] {
+            let x = random(&[b, cin, h, w], 11);
+            let weight = random(&[cout, cin, k, k], 12);
+            let bias = random(&[cout], 13);
+            let up = upsample_bilinear_to(&x, 2 * h, 2 * w).unwrap();
+            for relu in [false, true] {
+                let want = match relu {
+                    true => conv2d_relu(&up, &weight, Some(&bias), 1, k / 2).unwrap(),
+                    false => conv2d(&up, &weight, Some(&bias), 1, k / 2).unwrap(),
+                };
+                let got = conv2d_of_upsampled(&x, &weight, &bias, relu).unwrap();
+                assert_eq!(got.dims(), want.dims());
+                let worst = flat(&got).iter().zip(flat(&want)).map(|(a, b)| (a - b).abs()).fold(0f32, f32::max);
+                assert!(worst < 1e-5, "B{b} {cin}->{cout} {h}x{w} k{k} relu {relu}: largest difference {worst}");
+            }
+        }
+    }
+
+    #[test]
+    fn refuses_even_kernels_and_empty_maps() {
+        let bias = random(&[2], 1);
+        assert!(conv2d_of_upsampled(&random(&[1, 1, 4, 4], 1), &random(&[2, 1, 4, 4], 2), &bias, false).is_err());
+        assert!(conv2d_of_upsampled(&random(&[1, 2, 4, 4], 1), &random(&[2, 1, 3, 3], 2), &bias, false).is_err());
+        let empty = Tensor::zeros((1, 1, 0, 4), candle_core::DType::F32, &Device::Cpu).unwrap();
+        assert!(conv2d_of_upsampled(&empty, &random(&[2, 1, 3, 3], 2), &bias, false).is_err());
+    }
+}
