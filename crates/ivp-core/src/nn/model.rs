@@ -247,20 +247,15 @@ impl DepthHead {
         candle_nn::ops::sigmoid(&x)
     }
 
-    /// [`DepthHead::forward`] for inference, equal up to rounding: each upsampling by 2 and the
-    /// convolution after it in one step ([`conv2d_of_upsampled`]: half the multiply-adds, and no
-    /// upsampled map). No gradient.
+    /// [`DepthHead::forward`] for inference, equal up to rounding: `c3` and the upsampling before
+    /// it in one step ([`conv2d_of_upsampled`]: half the multiply-adds, and no upsampled map of 32
+    /// channels). `c4` stays as it is: with one output its direct kernel is as fast. No gradient.
     pub fn infer(&self, depth: &Tensor) -> Result<Tensor> {
         let (_, _, h, w) = depth.dims4()?;
         let x = self.c1.forward_relu(depth)?;
         let x = self.c2.forward_relu(&x)?;
         let x = self.c3.of_upsampled(&x, true)?;
-        let (_, _, xh, xw) = x.dims4()?;
-        // The last upsampling is by 2 only when the depth map's sides are even.
-        let x = match (h, w) == (2 * xh, 2 * xw) {
-            true => self.c4.of_upsampled(&x, false)?,
-            false => self.c4.forward(&upsample_bilinear_to(&x, h, w)?)?,
-        };
+        let x = self.c4.forward(&upsample_bilinear_to(&x, h, w)?)?;
         candle_nn::ops::sigmoid(&x)
     }
 }

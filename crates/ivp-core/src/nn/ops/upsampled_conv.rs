@@ -1,5 +1,5 @@
 //! A convolution of a map upsampled bilinearly by 2, computed on the map itself, for inference:
-//! the depth head's `conv(upsample(x))` pairs (ALGORITHMS.md §6.1).
+//! the depth head's `c3(upsample(x))` (ALGORITHMS.md §6.1).
 //!
 //! Upsampling by 2 with half-pixel centres makes each output pixel `0.75 x[j] + 0.25 x[j -+ 1]`
 //! of its input row and column, so a `k x k` convolution of the upsampled map is, for each of
@@ -12,6 +12,9 @@
 //! edge, interpolates to its edge value there). The border pixels, within `k / 2` of the edge, are
 //! corrected by subtracting what the taps beyond the edge added, so the result equals the direct
 //! way up to the order of the sums.
+
+use std::hash::{Hash, Hasher};
+use std::sync::{Arc, Mutex};
 
 use candle_core::{bail, Device, Result, Tensor};
 use rayon::prelude::*;
@@ -32,26 +35,25 @@ pub fn conv2d_of_upsampled(x: &Tensor, weight: &Tensor, bias: &Tensor, relu: boo
     }
     profile::timed("conv2d of upsampled", || {
         let weights: Vec<f32> = weight.flatten_all()?.to_vec1()?;
-        let (phases, reach) = phase_kernels(&weights, cout, cin, k);
-        let side = 2 * reach + 1;
-        let phases = Tensor::from_vec(phases, (4 * cout, cin, side, side), &Device::Cpu)?;
-        let bias4 = Tensor::cat(&[bias; 4], 0)?;
-        let padded = pad_by_repeating(x, reach)?;
+        let bias: Vec<f32> = bias.to_vec1()?;
+        let prepared = Prepared::of(&weights, &bias, (cout, cin, k))?;
+        let padded = pad_by_repeating(x, prepared.reach)?;
         // (B, 4 Cout, h, w): channel `phase * Cout + co`.
-        let by_phase: Vec<f32> = conv2d(&padded, &phases, Some(&bias4), 1, 0)?.flatten_all()?.to_vec1()?;
+        let by_phase = conv2d(&padded, &prepared.phases, Some(&prepared.bias4), 1, 0)?;
+        let by_phase: Vec<f32> = by_phase.flatten_all()?.to_vec1()?;
+        let kernels = &prepared.edges;
         let input: Vec<f32> = x.flatten_all()?.to_vec1()?;
         let (height, width) = (2 * h, 2 * w);
         let border = Border::new(height, width, k / 2);
         // What the taps beyond the edge added at each border pixel, for every output channel.
         let edges: Vec<Edges> = input.chunks_exact(cin * h * w).map(|x| Edges::new(x, cin, h, w)).collect();
-        let kernels = EdgeKernels::new(&weights, cout, cin, k);
         let pixels: Vec<(usize, usize, usize)> =
             (0..b).flat_map(|image| border.pixels().map(move |(oy, ox)| (image, oy, ox))).collect();
         let mut corrections = vec![0f32; pixels.len() * cout];
         corrections
             .par_chunks_mut(cout)
             .zip(&pixels)
-            .for_each(|(sum, &(image, oy, ox))| beyond_the_edge(&edges[image], &kernels, (oy, ox), sum));
+            .for_each(|(sum, &(image, oy, ox))| beyond_the_edge(&edges[image], kernels, (oy, ox), sum));
         // Each output row from its two phases, less the border's corrections, then the ReLU.
         let mut out = vec![0f32; b * cout * height * width];
         out.par_chunks_mut(width).enumerate().for_each(|(row, pixels)| {
@@ -74,6 +76,50 @@ pub fn conv2d_of_upsampled(x: &Tensor, weight: &Tensor, bias: &Tensor, relu: boo
         });
         Tensor::from_vec(out, (b, cout, height, width), &Device::Cpu)
     })
+}
+
+/// What a layer's weights give the phases: the phase kernels (4 Cout, Cin, s, s) with their bias,
+/// and the kernels of the border's correction.
+struct Prepared {
+    phases: Tensor,
+    bias4: Tensor,
+    reach: usize,
+    edges: EdgeKernels,
+}
+
+/// Layers prepared lately, by a hash of their weights' and bias' bits. Preparing costs about as
+/// much as the phases of a small tile, and a 1080p frame calls the same two layers a dozen times
+/// (every batch of tiles of every pass); weights that change (a network in training) miss.
+static PREPARED: Mutex<Vec<(u64, Arc<Prepared>)>> = Mutex::new(Vec::new());
+
+/// Layers [`PREPARED`] keeps: a few networks' depth heads.
+const PREPARED_KEPT: usize = 8;
+
+impl Prepared {
+    fn of(weights: &[f32], bias: &[f32], (cout, cin, k): (usize, usize, usize)) -> Result<Arc<Self>> {
+        let mut hasher = std::collections::hash_map::DefaultHasher::new();
+        (cout, cin, k).hash(&mut hasher);
+        weights.iter().chain(bias).for_each(|v| v.to_bits().hash(&mut hasher));
+        let key = hasher.finish();
+        let mut kept = PREPARED.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some((_, prepared)) = kept.iter().find(|(k, _)| *k == key) {
+            return Ok(prepared.clone());
+        }
+        let (phases, reach) = phase_kernels(weights, cout, cin, k);
+        let side = 2 * reach + 1;
+        let bias4: Vec<f32> = bias.iter().copied().cycle().take(4 * cout).collect();
+        let prepared = Arc::new(Self {
+            phases: Tensor::from_vec(phases, (4 * cout, cin, side, side), &Device::Cpu)?,
+            bias4: Tensor::from_vec(bias4, 4 * cout, &Device::Cpu)?,
+            reach,
+            edges: EdgeKernels::new(weights, cout, cin, k),
+        });
+        if kept.len() == PREPARED_KEPT {
+            kept.remove(0);
+        }
+        kept.push((key, prepared.clone()));
+        Ok(prepared)
+    }
 }
 
 /// The pixels of a `height x width` map within `r` of its edge, row-major: whole rows in the top
