@@ -11,7 +11,9 @@ use candle_core::{bail, DType, Device, Result, Storage, Tensor};
 
 use rayon::prelude::*;
 
-use crate::nn::ops::conv2d::add_pixels_times_weights;
+use std::ops::Range;
+
+use crate::nn::ops::conv2d::add_product;
 use crate::nn::ops::{contiguous_values, profile};
 
 /// One pixel of a batch of maps: image, row, column.
@@ -76,6 +78,9 @@ pub fn decoder_step_at(
         bail!("decoder_step_at: point {p:?} outside the {b}x{height}x{width} maps");
     }
     let taps = cin * 9;
+    if points.is_empty() {
+        return Tensor::zeros((0, cout), DType::F32, &Device::Cpu);
+    }
     let values = profile::timed("decoder at points", || -> Result<Vec<f32>> {
         let tensors = [coarse, skip, weight, bias].map(|t| t.contiguous());
         let [coarse, skip, weight, bias] = tensors;
@@ -87,61 +92,77 @@ pub fn decoder_step_at(
             slices.push(contiguous_values(storage, layout, "decoder_step_at")?);
         }
         let [coarse, skip, weight, bias] = slices[..] else { unreachable!("four tensors") };
-        let mut out = vec![0f32; points.len() * cout];
-        // Chunks of points in parallel, each an im2col of its points times the weights.
-        out.par_chunks_mut(POINTS_PER_CHUNK * cout).zip(points.par_chunks(POINTS_PER_CHUNK)).for_each(
-            |(out, points)| {
-                let n = points.len();
-                // Where each tap of each point reads, within one channel's plane (None: padding).
-                let offsets = |upsampled: bool| -> Vec<Option<usize>> {
-                    let (plane, row) = if upsampled { (cc * h * w, w) } else { (cs * height * width, width) };
-                    (0..9)
-                        .flat_map(|tap| points.iter().map(move |p| (tap, p)))
-                        .map(|(tap, p)| {
-                            let y = (p.y + tap / 3).checked_sub(1).filter(|&y| y < height)?;
-                            let x = (p.x + tap % 3).checked_sub(1).filter(|&x| x < width)?;
-                            Some(match upsampled {
-                                true => p.image * plane + y / 2 * row + x / 2,
-                                false => p.image * plane + y * row + x,
-                            })
-                        })
-                        .collect()
-                };
-                // Row (channel, tap) of `cols` holds what each point reads through that tap.
-                let mut cols = vec![0f32; taps * n];
-                for (upsampled, channels, stride, values) in
-                    [(true, 0..cc, h * w, coarse), (false, cc..cin, height * width, skip)]
-                {
-                    let offsets = offsets(upsampled);
-                    for (c, channel) in channels.clone().enumerate() {
-                        let plane = &values[c * stride..];
-                        for (tap, offsets) in offsets.chunks_exact(n).enumerate() {
-                            let row = &mut cols[(channel * 9 + tap) * n..][..n];
-                            for (v, offset) in row.iter_mut().zip(offsets) {
-                                if let Some(o) = offset {
-                                    *v = plane[*o];
-                                }
-                            }
-                        }
-                    }
+        let n = points.len();
+        // Where each tap of each point reads within one channel's plane (None: in the padding),
+        // in the upsampled coarse level and in the skip.
+        let offsets = |upsampled: bool| -> Vec<Option<usize>> {
+            let (plane, row) = if upsampled { (cc * h * w, w) } else { (cs * height * width, width) };
+            (0..9)
+                .flat_map(|tap| points.iter().map(move |p| (tap, p)))
+                .map(|(tap, p)| {
+                    let y = (p.y + tap / 3).checked_sub(1).filter(|&y| y < height)?;
+                    let x = (p.x + tap % 3).checked_sub(1).filter(|&x| x < width)?;
+                    Some(match upsampled {
+                        true => p.image * plane + y / 2 * row + x / 2,
+                        false => p.image * plane + y * row + x,
+                    })
+                })
+                .collect()
+        };
+        let (from_coarse, from_skip) = (offsets(true), offsets(false));
+        // im2col of the points: row (channel, tap) holds what each point reads through that tap.
+        let mut cols = vec![0f32; taps * n];
+        cols.par_chunks_mut(9 * n).enumerate().for_each(|(channel, rows)| {
+            let (plane, offsets) = match channel < cc {
+                true => (&coarse[channel * h * w..], &from_coarse),
+                false => (&skip[(channel - cc) * height * width..], &from_skip),
+            };
+            for (v, offset) in rows.iter_mut().zip(offsets) {
+                if let Some(o) = offset {
+                    *v = plane[*o];
                 }
-                for row in out.chunks_exact_mut(cout) {
-                    row.copy_from_slice(bias);
+            }
+        });
+        // The weights (Cout x taps) times the columns (taps x N), in blocks of output channels
+        // and of points, in parallel; the blocks are fixed by the shapes, so the sums do not
+        // depend on the number of threads.
+        let blocks: Vec<(Range<usize>, Range<usize>)> = (0..cout)
+            .step_by(CHANNELS_PER_BLOCK)
+            .flat_map(|c| (0..n).step_by(POINTS_PER_BLOCK).map(move |p| (c, p)))
+            .map(|(c, p)| (c..(c + CHANNELS_PER_BLOCK).min(cout), p..(p + POINTS_PER_BLOCK).min(n)))
+            .collect();
+        let products: Vec<Vec<f32>> = blocks
+            .par_iter()
+            .map(|(channels, pixels)| {
+                let mut product: Vec<f32> =
+                    channels.clone().flat_map(|c| std::iter::repeat_n(bias[c], pixels.len())).collect();
+                let weights = &weight[channels.start * taps..channels.end * taps];
+                add_product(
+                    (channels.len(), pixels.len(), taps),
+                    (weights, taps),
+                    (&cols[pixels.start..], n),
+                    (&mut product, pixels.len()),
+                );
+                product
+            })
+            .collect();
+        let mut out = vec![0f32; n * cout];
+        for ((channels, pixels), product) in blocks.iter().zip(&products) {
+            for (c, row) in channels.clone().zip(product.chunks_exact(pixels.len())) {
+                for (i, v) in pixels.clone().zip(row) {
+                    out[i * cout + c] = if relu { v.max(0.0) } else { *v };
                 }
-                add_pixels_times_weights(n, cout, taps, &cols, weight, out);
-                if relu {
-                    out.iter_mut().for_each(|v| *v = v.max(0.0));
-                }
-            },
-        );
+            }
+        }
         Ok(out)
     })?;
     Tensor::from_vec(values, (points.len(), cout), &Device::Cpu)
 }
 
-/// Points per parallel work item of [`decoder_step_at`]: a fixed size, so that results do not
-/// depend on the number of threads.
-const POINTS_PER_CHUNK: usize = 128;
+/// Output channels and points of one product block of [`decoder_step_at`] (a fixed size, so that
+/// results do not depend on the number of threads): large enough for gemm's kernels.
+const CHANNELS_PER_BLOCK: usize = 64;
+const POINTS_PER_BLOCK: usize = 512;
 
 /// The map of shape (B, C, H, W) that holds `values` (N, C) at `points` and zeros elsewhere.
 pub fn scatter(values: &Tensor, points: &[Pixel], (b, c, h, w): (usize, usize, usize, usize)) -> Result<Tensor> {

@@ -342,20 +342,34 @@ unsafe fn matmul(m: usize, n: usize, k: usize, dst: Mat, accumulate: bool, lhs: 
     })
 }
 
-/// `out (m x n) += cols^T weight^T` for row-major `cols` (k x m: taps by pixels, an im2col
-/// matrix) and `weight` (n x k: a convolution's (Cout, Cin k k)), on the calling thread: the
-/// outputs of `m` pixels, pixel-major.
-pub(crate) fn add_pixels_times_weights(m: usize, n: usize, k: usize, cols: &[f32], weight: &[f32], out: &mut [f32]) {
-    assert!(cols.len() == k * m && weight.len() == n * k && out.len() == m * n, "add_pixels_times_weights: shapes");
+/// `out (m x n) += lhs (m x k) rhs (k x n)` on the calling thread, each a row-major matrix given
+/// as a slice that starts at its first element and its row stride (which may exceed its width:
+/// a block of a larger matrix).
+pub(crate) fn add_product(
+    (m, n, k): (usize, usize, usize),
+    (lhs, lhs_stride): (&[f32], usize),
+    (rhs, rhs_stride): (&[f32], usize),
+    (out, out_stride): (&mut [f32], usize),
+) {
     if m == 0 || n == 0 {
         return;
     }
-    // SAFETY: the slices hold the matrices with these strides (checked above) and `out` is
+    let fits = |len: usize, rows: usize, cols: usize, stride: usize| {
+        stride >= cols && (rows == 0 || cols == 0 || len >= (rows - 1) * stride + cols)
+    };
+    assert!(
+        fits(lhs.len(), m, k, lhs_stride) && fits(rhs.len(), k, n, rhs_stride) && fits(out.len(), m, n, out_stride),
+        "add_product: the slices do not hold the matrices"
+    );
+    // SAFETY: each slice holds its matrix with these strides (checked above), and `out` is
     // borrowed mutably, so it overlaps neither operand.
     unsafe {
-        let (dst, lhs, rhs) =
-            (Mat::new(out.as_mut_ptr(), n, 1), Mat::new(cols.as_ptr(), 1, m), Mat::new(weight.as_ptr(), 1, k));
-        matmul(m, n, k, dst, true, lhs, rhs)
+        let (dst, a, b) = (
+            Mat::new(out.as_mut_ptr(), out_stride, 1),
+            Mat::new(lhs.as_ptr(), lhs_stride, 1),
+            Mat::new(rhs.as_ptr(), rhs_stride, 1),
+        );
+        matmul(m, n, k, dst, true, a, b)
     }
 }
 
