@@ -534,16 +534,21 @@ mod tests {
         assert_eq!(prior.get(12, 10), [0.0, 0.0]);
     }
 
+    /// Frames n-2, n and t of the box scene at camera x = 0, 0.2, 0.3, and the known mask of the
+    /// warp n -> t.
+    fn box_scene() -> (Intrinsics, [(RgbImage, DepthMap, WorldToCamera); 3], Vec<bool>) {
+        let k = test_scene::intrinsics();
+        let frames = [0.0, 0.2, 0.3].map(test_scene::render);
+        let (f2, d2, p2) = &frames[1];
+        let known_t = warp_forward(f2, d2, &k, &relative_pose(p2, &frames[2].2)).holes.known();
+        (k, frames, known_t)
+    }
+
     #[test]
     fn prior_of_a_box_scene_points_to_the_background_on_known_pixels_only() {
         // Camera moving right: the box moves left and uncovers wall on its right, which matches the
-        // wall further right. Frames n-2, n, t at camera x = 0, 0.2, 0.3.
-        let k = test_scene::intrinsics();
-        let (f0, d0, p0) = test_scene::render(0.0);
-        let (f2, d2, p2) = test_scene::render(0.2);
-        let (_, _, p3) = test_scene::render(0.3);
-        let warp_t = warp_forward(&f2, &d2, &k, &relative_pose(&p2, &p3));
-        let known_t = warp_t.holes.known();
+        // wall further right.
+        let (k, [(f0, d0, p0), (f2, d2, p2), (_, _, p3)], known_t) = box_scene();
         let before_last = FrameView { image: &f0, depth: &d0, pose: &p0 };
         let last = FrameView { image: &f2, depth: &d2, pose: &p2 };
         let TargetPrior { prior, warp_to_last } = target_prior(&before_last, &last, &p3, &k, &known_t);
@@ -558,31 +563,26 @@ mod tests {
 
     #[test]
     fn the_prior_needs_only_the_known_mask_of_the_warp_and_the_last_frame_near_its_holes() {
-        let k = test_scene::intrinsics();
-        let (f0, d0, p0) = test_scene::render(0.0);
-        let (f2, d2, p2) = test_scene::render(0.2);
-        let (_, _, p3) = test_scene::render(0.3);
-        let known_t = warp_forward(&f2, &d2, &k, &relative_pose(&p2, &p3)).holes.known();
+        let (k, [(f0, d0, p0), (f2, d2, p2), (_, _, p3)], known_t) = box_scene();
         let before_last = FrameView { image: &f0, depth: &d0, pose: &p0 };
         let last = FrameView { image: &f2, depth: &d2, pose: &p2 };
         let whole = target_prior(&before_last, &last, &p3, &k, &known_t).prior;
         let known_n = crate::geometry::warp_known(&d0, &k, &relative_pose(&p0, &p2));
         assert_eq!(known_n, warp_to_last(&before_last, &last, &k).holes.known());
-        // The last frame replaced by NaN beyond the reach of the holes changes nothing.
+        // The last frame replaced by NaN beyond `reach` of the holes.
         let (w, h) = (f2.width(), f2.height());
         let holes: Vec<bool> = known_n.iter().map(|&k| !k).collect();
-        let near = crate::geometry::within_reach(&holes, w, h, GROUND_TRUTH_REACH);
-        assert!(near.iter().filter(|&&n| !n).count() > w * h / 2, "most of the frame is out of reach");
-        let pixels = f2.pixels().iter().zip(&near).map(|(&p, &n)| if n { p } else { [f32::NAN; 3] }).collect();
-        let cut = RgbImage::from_pixels(w, h, pixels);
-        let from_cut = prior_from_last(&known_n, &FrameView { image: &cut, ..last }, &p3, &k, &known_t);
-        assert_eq!(from_cut, whole);
+        let prior_with_last_cut_at = |reach: usize| {
+            let near = crate::geometry::within_reach(&holes, w, h, reach);
+            assert!(near.iter().filter(|&&n| !n).count() > w * h / 2, "most of the frame is out of reach");
+            let pixels = f2.pixels().iter().zip(&near).map(|(&p, &n)| if n { p } else { [f32::NAN; 3] }).collect();
+            let cut = RgbImage::from_pixels(w, h, pixels);
+            prior_from_last(&known_n, &FrameView { image: &cut, ..last }, &p3, &k, &known_t)
+        };
         assert!(whole.pixels().iter().any(|&v| v != [0.0, 0.0]));
+        assert_eq!(prior_with_last_cut_at(GROUND_TRUTH_REACH), whole);
         // One pixel less of reach does change it: the reach is not larger than needed.
-        let nearer = crate::geometry::within_reach(&holes, w, h, GROUND_TRUTH_REACH - 1);
-        let pixels = f2.pixels().iter().zip(&nearer).map(|(&p, &n)| if n { p } else { [f32::NAN; 3] }).collect();
-        let cut = RgbImage::from_pixels(w, h, pixels);
-        assert_ne!(prior_from_last(&known_n, &FrameView { image: &cut, ..last }, &p3, &k, &known_t), whole);
+        assert_ne!(prior_with_last_cut_at(GROUND_TRUTH_REACH - 1), whole);
     }
 
     #[test]

@@ -363,15 +363,21 @@ impl IvpNet {
         }
     }
 
-    /// The network's output before any compositing: vectors (B, 2, H, W) or RGB (B, 3, H, W),
-    /// multiplied by the mask.
-    pub fn raw_output(&self, input: &NetInput<'_>) -> Result<Tensor> {
-        let x = self.unet_input(input, false)?;
+    /// The encoder's maps `e1` to `e5`, the depth head in its inference form if `inference`.
+    fn encode(&self, input: &NetInput<'_>, inference: bool) -> Result<[Tensor; 5]> {
+        let x = self.unet_input(input, inference)?;
         let x1 = self.e1.forward_relu(&x)?;
         let x2 = self.e2.forward_relu(&x1)?;
         let x3 = self.e3.forward_relu(&x2)?;
         let x4 = self.e4.forward_relu(&x3)?;
         let x5 = self.e5.forward_relu(&x4)?;
+        Ok([x1, x2, x3, x4, x5])
+    }
+
+    /// The network's output before any compositing: vectors (B, 2, H, W) or RGB (B, 3, H, W),
+    /// multiplied by the mask.
+    pub fn raw_output(&self, input: &NetInput<'_>) -> Result<Tensor> {
+        let [x1, x2, x3, x4, x5] = self.encode(input, false)?;
         // Each skip is dropped once used: at 1080p the last ones are the largest maps.
         let y = self.d6.forward_relu(&up_and_concat(&x5, &x4)?)?;
         drop((x5, x4));
@@ -389,12 +395,7 @@ impl IvpNet {
     /// encoder runs over the whole input; each decoder level only at the pixels that the points
     /// read through the levels above it ([`pixels_read`]).
     pub fn raw_output_at(&self, input: &NetInput<'_>, points: &[Pixel]) -> Result<Tensor> {
-        let x = self.unet_input(input, true)?;
-        let x1 = self.e1.forward_relu(&x)?;
-        let x2 = self.e2.forward_relu(&x1)?;
-        let x3 = self.e3.forward_relu(&x2)?;
-        let x4 = self.e4.forward_relu(&x3)?;
-        let x5 = self.e5.forward_relu(&x4)?;
+        let [x1, x2, x3, x4, x5] = self.encode(input, true)?;
         // The pixels of each decoder level that the points need, from the top level down.
         let (b, _, h, w) = x1.dims4()?;
         let hw = |t: &Tensor| -> Result<(usize, usize)> { Ok((t.dim(2)?, t.dim(3)?)) };
@@ -504,16 +505,19 @@ mod tests {
         [(r(2, 4) * 3.0).unwrap(), depth, mask, warped, r(3, 5).abs().unwrap(), r(3, 6).abs().unwrap()]
     }
 
-    fn run(net: &IvpNet, t: &[Tensor; 6]) -> NetOutput {
-        net.forward(&NetInput {
+    fn net_input(t: &[Tensor; 6]) -> NetInput<'_> {
+        NetInput {
             prior: &t[0],
             warped_depth: &t[1],
             mask: &t[2],
             warped: &t[3],
             last: Some(&t[4]),
             last_warped: Some(&t[5]),
-        })
-        .unwrap()
+        }
+    }
+
+    fn run(net: &IvpNet, t: &[Tensor; 6]) -> NetOutput {
+        net.forward(&net_input(t)).unwrap()
     }
 
     #[test]
@@ -538,14 +542,7 @@ mod tests {
             // Odd sizes: the decoder crops its upsampled maps at every level.
             let (b, h, w) = (2, 37, 29);
             let t = inputs(b, h, w, 4);
-            let input = NetInput {
-                prior: &t[0],
-                warped_depth: &t[1],
-                mask: &t[2],
-                warped: &t[3],
-                last: Some(&t[4]),
-                last_warped: Some(&t[5]),
-            };
+            let input = net_input(&t);
             let whole: Vec<f32> = net.raw_output(&input).unwrap().flatten_all().unwrap().to_vec1().unwrap();
             let mask: Vec<f32> = t[2].flatten_all().unwrap().to_vec1().unwrap();
             // The masked pixels, the corners and a row along the bottom edge.

@@ -51,37 +51,62 @@ pub enum BenchCommand {
     },
     /// One frame end to end on a generated clip: warp, holes, prior, network, infill, by stage,
     /// with the hole fraction, the tiles run, and the frame's D-MSE beside fill's.
-    Frame {
-        /// Frame height in pixels.
-        #[arg(long, default_value_t = 1080)]
-        height: usize,
-        /// Frame width in pixels.
-        #[arg(long, default_value_t = 1920)]
-        width: usize,
-        /// A trained model file; without it, an untrained network of --width-mult.
-        #[arg(long, conflicts_with = "width_mult")]
-        model: Option<PathBuf>,
-        /// Width multiplier of the untrained network (the recipe's is 0.25).
-        #[arg(long, default_value_t = 0.25)]
-        width_mult: f64,
-        /// Width multiplier of the untrained network's depth head (1 = the paper's).
-        #[arg(long, default_value_t = 1.0, conflicts_with = "model")]
-        depth_head_mult: f64,
-        /// Iterations of the test-time infilling (ALGORITHMS.md §6.5).
-        #[arg(long, default_value_t = ivp_core::infill::DEFAULT_ITERATIONS)]
-        iterations: usize,
-        /// Timed runs (after one untimed warm-up run).
-        #[arg(long, default_value_t = 5)]
-        runs: usize,
-        /// Seed of the generated scene.
-        #[arg(long, default_value_t = 0)]
-        seed: u64,
-        #[command(flatten)]
-        coverage: CoverageArgs,
-        /// Add the network's milliseconds per run by operator.
-        #[arg(long)]
-        profile: bool,
-    },
+    Frame(FrameArgs),
+}
+
+/// The arguments of `ivp bench frame`.
+#[derive(Debug, clap::Args)]
+pub struct FrameArgs {
+    /// Frame height in pixels.
+    #[arg(long, default_value_t = 1080)]
+    pub height: usize,
+    /// Frame width in pixels.
+    #[arg(long, default_value_t = 1920)]
+    pub width: usize,
+    /// A trained model file; without it, an untrained network of --width-mult.
+    #[arg(long, conflicts_with = "width_mult")]
+    pub model: Option<PathBuf>,
+    /// Width multiplier of the untrained network (the recipe's is 0.25).
+    #[arg(long, default_value_t = 0.25)]
+    pub width_mult: f64,
+    /// Width multiplier of the untrained network's depth head (1 = the paper's).
+    #[arg(long, default_value_t = 1.0, conflicts_with = "model")]
+    pub depth_head_mult: f64,
+    /// Iterations of the test-time infilling (ALGORITHMS.md §6.5).
+    #[arg(long, default_value_t = ivp_core::infill::DEFAULT_ITERATIONS)]
+    pub iterations: usize,
+    /// Timed runs (after one untimed warm-up run).
+    #[arg(long, default_value_t = 5)]
+    pub runs: usize,
+    /// Seed of the generated scene.
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    #[command(flatten)]
+    pub coverage: CoverageArgs,
+    /// Add the network's milliseconds per run by operator.
+    #[arg(long)]
+    pub profile: bool,
+}
+
+impl FrameArgs {
+    fn case(self) -> Result<FrameCase> {
+        ensure_width_mult(self.width_mult)?;
+        check_depth_head_mult(self.depth_head_mult).map_err(anyhow::Error::msg)?;
+        ensure!(self.height >= 16 && self.width >= 16, "--height and --width must be at least 16");
+        Ok(FrameCase {
+            coverage: self.coverage.coverage()?,
+            scale: self.coverage.scale,
+            height: self.height,
+            width: self.width,
+            model: self.model,
+            width_mult: self.width_mult,
+            depth_head_mult: self.depth_head_mult,
+            iterations: self.iterations,
+            runs: self.runs,
+            seed: self.seed,
+            profile: self.profile,
+        })
+    }
 }
 
 pub fn run_bench(command: BenchCommand) -> Result<()> {
@@ -96,35 +121,8 @@ pub fn run_bench(command: BenchCommand) -> Result<()> {
             ensure!(height >= 16 && width >= 16 && runs > 0, "--height, --width must be >= 16 and --runs >= 1");
             bench_infer(&InferCase { height, width, runs, width_mult, profile })?
         }
-        BenchCommand::Frame {
-            height,
-            width,
-            model,
-            width_mult,
-            depth_head_mult,
-            iterations,
-            runs,
-            seed,
-            coverage,
-            profile,
-        } => {
-            ensure_width_mult(width_mult)?;
-            check_depth_head_mult(depth_head_mult).map_err(anyhow::Error::msg)?;
-            ensure!(height >= 16 && width >= 16, "--height and --width must be at least 16");
-            let case = FrameCase {
-                height,
-                width,
-                model,
-                width_mult,
-                depth_head_mult,
-                iterations,
-                coverage: coverage.coverage()?,
-                scale: coverage.scale,
-                runs,
-                seed,
-                profile,
-            };
-            let report = bench_frame(&case)?;
+        BenchCommand::Frame(args) => {
+            let report = bench_frame(&args.case()?)?;
             println!("{}", serde_json::to_string(&report)?);
             return Ok(());
         }
