@@ -1,8 +1,8 @@
-//! The per-frame stages of inference at 1920x1080 besides the network (`ivp bench frame` times
-//! them end to end): the temporal prior, the background depth threshold, the new-region rule,
-//! the classical infillers, the tile plan of sparse inference, and what scaled inference adds
-//! around the network (the prior on shrunk frames; shrinking the tiles' inputs and growing their
-//! vectors).
+//! The per-frame stages of inference at 1920x1080 (`ivp bench frame` times them end to end): the
+//! temporal prior, the background depth threshold, the new-region rule, the classical infillers,
+//! the tile plan of sparse inference, what scaled inference adds around the network (the prior on
+//! shrunk frames; shrinking the tiles' inputs and growing their vectors), and one sparse pass of
+//! the recipe's network (width 0.25, untrained weights) at factor 2.
 //!
 //! `cargo bench -p ivp-core --bench frame_stages`.
 
@@ -12,8 +12,9 @@ static GLOBAL: mimalloc::MiMalloc = mimalloc::MiMalloc;
 use criterion::{criterion_group, criterion_main, Criterion};
 use glam::{DMat4, DVec3};
 use ivp_core::geometry::{FrameView, NearestKnown};
-use ivp_core::inference::{plan_tiles, shrunk_temporal_prior, NetworkFrame, TileShape};
-use ivp_core::infill::{classical_infiller, fill_new_regions, InfillContext};
+use ivp_core::inference::{plan_tiles, shrunk_temporal_prior, Coverage, NetworkFrame, NetworkPredictor, TileShape};
+use ivp_core::infill::{classical_infiller, fill_new_regions, InfillContext, VectorPredictor};
+use ivp_core::nn::model::{IvpNet, ModelConfig, Variant};
 use ivp_core::prior::{background_depth_threshold, target_prior};
 use ivp_core::{relative_pose, warp_forward, DepthMap, Image, Intrinsics, RgbImage, VectorField, WorldToCamera};
 
@@ -75,6 +76,12 @@ fn bench_stages(c: &mut Criterion) {
         })
     });
     group.bench_function("network_frame_x2_holes", |b| b.iter(|| NetworkFrame::new(&prior, &warp.depth, &holes, 2)));
+    // The network itself: the encoder and depth head over the tiles, the decoder at the holes.
+    let (net, _) = IvpNet::seeded(ModelConfig::new(Variant::Full, 0.25), 0).unwrap();
+    let net = net.detached();
+    let network = NetworkPredictor::new(&net, Coverage::default(), 2);
+    group
+        .bench_function("network_sparse_pass_x2", |b| b.iter(|| network.predict(&prior, &warp.depth, &holes).unwrap()));
     group.bench_function("plan_tiles", |b| b.iter(|| plan_tiles(w, h, &holes, TileShape::DEFAULT)));
     for method in ["fill", "telea"] {
         let infiller = classical_infiller(method).unwrap();
