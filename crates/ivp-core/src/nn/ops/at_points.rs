@@ -198,8 +198,13 @@ mod tests {
 
     #[test]
     fn the_decoder_step_at_points_equals_the_dense_step_there() {
-        let (b, cc, cs, cout) = (2, 5, 3, 4);
-        for (h, w, height, width) in [(6, 9, 12, 18), (6, 9, 11, 17), (1, 1, 2, 1)] {
+        // The last case has more points and channels than one product block holds.
+        for (b, cc, cs, cout, h, w, height, width) in [
+            (2, 5, 3, 4, 6, 9, 12, 18),
+            (2, 5, 3, 4, 6, 9, 11, 17),
+            (2, 5, 3, 4, 1, 1, 2, 1),
+            (2, 6, 4, CHANNELS_PER_BLOCK + 6, 20, 21, 40, 41),
+        ] {
             let coarse = random(&[b, cc, h, w], 1);
             let skip = random(&[b, cs, height, width], 2);
             let weight = random(&[cout, cc + cs, 3, 3], 3);
@@ -212,6 +217,7 @@ mod tests {
                 };
                 let dense = flat(&dense);
                 let pts = points(b, height, width);
+                assert!(height < 40 || pts.len() > POINTS_PER_BLOCK, "{} points", pts.len());
                 let at = flat(&decoder_step_at(&coarse, &skip, &weight, &bias, relu, &pts).unwrap());
                 for (i, p) in pts.iter().enumerate() {
                     for c in 0..cout {
