@@ -414,7 +414,7 @@ fn to_markdown(
     );
     out.push_str(
         "ms/frame is `ivp eval`'s time per frame: the warp, and for `ivp` the temporal prior, P passes \
-         of the network and the infilling. D-MSE and D-SSIM are on disocclusion pixels (MSE on the \
+         of the network and the infilling (each method's first frame is run once untimed first). D-MSE and D-SSIM are on disocclusion pixels (MSE on the \
          0..255 scale); TC is temporal consistency (lower is better), only where the targets are every \
          other frame. Pareto: no other method is both at least as fast and at least as accurate (D-MSE) \
          on the same dataset; `oracle` reads the ground truth and is left out of the front.\n\n",
