@@ -202,7 +202,7 @@ pub fn shrunk_temporal_prior(ctx: &InfillContext<'_>, factor: usize) -> Option<V
         _ => {
             let holes_n: Vec<bool> = known_n.iter().map(|&k| !k).collect();
             let read = within_reach(&holes_n, depth_n.width(), depth_n.height(), GROUND_TRUTH_REACH);
-            Cow::Owned(shrink_image_at(ctx.last.image, s, &read))
+            Cow::Owned(shrink_image_at(ctx.last.image, s, Some(&read)))
         }
     };
     let view_n = FrameView { image: &image_n, depth: &depth_n, pose: ctx.last.pose };
@@ -241,17 +241,17 @@ pub fn shrink_intrinsics(k: &Intrinsics, s: usize) -> Intrinsics {
 
 /// Each block of `s x s` pixels (partial at the right and bottom) becomes its mean colour.
 pub fn shrink_image(image: &RgbImage, s: usize) -> RgbImage {
-    shrink_image_at(image, s, &vec![true; image.width().div_ceil(s) * image.height().div_ceil(s)])
+    shrink_image_at(image, s, None)
 }
 
-/// [`shrink_image`] at the blocks marked in `at` (row-major, of the shrunk size) only; the others
-/// are 0.
-fn shrink_image_at(image: &RgbImage, s: usize, at: &[bool]) -> RgbImage {
+/// [`shrink_image`] at the blocks marked in `at` (row-major, of the shrunk size) only, the others
+/// 0; at every block without `at`.
+fn shrink_image_at(image: &RgbImage, s: usize, at: Option<&[bool]>) -> RgbImage {
     shrink_blocks(
         image,
         s,
         shrunk_whole(image, s),
-        Some(at),
+        at,
         |(sum, n): &mut ([f64; 3], usize), p| {
             (0..3).for_each(|c| sum[c] += p[c] as f64);
             *n += 1;

@@ -31,30 +31,15 @@ pub fn take() -> BTreeMap<&'static str, OperatorTime> {
 
 /// Runs `f`, adding its wall time to operator `name` when recording is on.
 pub(crate) fn timed<T>(name: &'static str, f: impl FnOnce() -> T) -> T {
-    let _scope = enter(name);
-    f()
-}
-
-/// A scope whose wall time, from [`enter`] until it is dropped, adds to operator `name` when
-/// recording is on (for stretches of code that are not one closure).
-pub(crate) struct Scope {
-    name: &'static str,
-    start: Option<Instant>,
-}
-
-/// Starts a [`Scope`] of operator `name`.
-pub(crate) fn enter(name: &'static str) -> Scope {
-    Scope { name, start: ENABLED.load(Ordering::Relaxed).then(Instant::now) }
-}
-
-impl Drop for Scope {
-    fn drop(&mut self) {
-        if let Some(start) = self.start {
-            let elapsed = start.elapsed();
-            let mut totals = TOTALS.lock().unwrap_or_else(|e| e.into_inner());
-            let entry = totals.entry(self.name).or_default();
-            entry.total += elapsed;
-            entry.calls += 1;
-        }
+    if !ENABLED.load(Ordering::Relaxed) {
+        return f();
     }
+    let start = Instant::now();
+    let out = f();
+    let elapsed = start.elapsed();
+    let mut totals = TOTALS.lock().unwrap_or_else(|e| e.into_inner());
+    let entry = totals.entry(name).or_default();
+    entry.total += elapsed;
+    entry.calls += 1;
+    out
 }

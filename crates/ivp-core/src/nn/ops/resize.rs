@@ -223,7 +223,7 @@ impl CustomOp1 for UpConcatGradX {
 
 /// How output pixels of one axis read the input: (i0, i1, weight of i0, weight of i1), as in
 /// PyTorch's `upsample_bilinear2d` with `align_corners=False`.
-fn bilinear_taps(n_in: usize, n_out: usize) -> Vec<(usize, usize, f32, f32)> {
+pub(crate) fn bilinear_taps(n_in: usize, n_out: usize) -> Vec<(usize, usize, f32, f32)> {
     let scale = n_in as f32 / n_out as f32;
     (0..n_out)
         .map(|i| {

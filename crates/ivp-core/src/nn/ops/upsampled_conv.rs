@@ -19,6 +19,7 @@ use std::sync::{Arc, Mutex};
 use candle_core::{bail, Device, Result, Tensor};
 use rayon::prelude::*;
 
+use crate::nn::ops::resize::bilinear_taps;
 use crate::nn::ops::{conv2d, profile};
 
 /// `conv2d(upsample_bilinear_to(x, 2 h, 2 w), weight, bias, stride 1, padding k / 2)`, then a
@@ -167,22 +168,23 @@ impl Border {
 /// channel: `(4 Cout, Cin, 2 reach + 1, 2 reach + 1)` row-major, and `reach`.
 fn phase_kernels(weights: &[f32], cout: usize, cin: usize, k: usize) -> (Vec<f32>, usize) {
     let r = k / 2;
-    // Output pixel 2 j + p reads upsampled pixel 2 j + p + t, t in -r..=r; that one is
-    // 0.75 x[m] + 0.25 x[m - 1] (even, 2 m) or 0.75 x[m] + 0.25 x[m + 1] (odd, 2 m + 1).
+    // Output pixel 2 j + p reads upsampled pixel 2 j + p + t - r (t in 0..k), which mixes input
+    // pixels j - 2 .. j + 2 (for k = 7): within `reach` of j.
     let reach = (r + 2) / 2;
     let side = 2 * reach + 1;
-    // mix[p][t][d]: weight of input pixel j + d - reach in upsampled pixel 2 j + p + t - r.
+    // mix[p][t][d]: weight of input pixel j + d - reach in upsampled pixel 2 j + p + t - r, read
+    // from the upsampling's own taps at an input pixel j far enough from both edges.
+    let n = 2 * reach + 4;
+    let j = reach + 1;
+    let taps = bilinear_taps(n, 2 * n);
     let mix: Vec<Vec<Vec<f32>>> = (0..2)
         .map(|p| {
             (0..k)
                 .map(|t| {
-                    let q = (p + t) as isize - r as isize;
-                    let (m, odd) = (q.div_euclid(2), q.rem_euclid(2) == 1);
+                    let (i0, i1, w0, w1) = taps[2 * j + p + t - r];
                     let mut row = vec![0f32; side];
-                    let near = (m + reach as isize) as usize;
-                    let far = if odd { near + 1 } else { near - 1 };
-                    row[near] += 0.75;
-                    row[far] += 0.25;
+                    row[i0 + reach - j] += w0;
+                    row[i1 + reach - j] += w1;
                     row
                 })
                 .collect()
@@ -244,12 +246,18 @@ struct Edges {
 }
 
 impl Edges {
-    /// Of `x` (Cin, h, w) upsampled by 2.
-    fn new(x: &[f32], cin: usize, h: usize, w: usize) -> Self {
+    /// Of `input` (Cin, h, w) upsampled by 2.
+    fn new(input: &[f32], cin: usize, h: usize, w: usize) -> Self {
         let (height, width) = (2 * h, 2 * w);
-        let plane = |c: usize| &x[c * h * w..][..h * w];
+        let (rows, columns) = (bilinear_taps(h, height), bilinear_taps(w, width));
+        // Pixel (y, x) of channel c, weighed as `upsample_bilinear_to` weighs it.
+        let upsampled = |c: usize, y: usize, x: usize| {
+            let ((y0, y1, ly0, ly1), (x0, x1, lx0, lx1)) = (rows[y], columns[x]);
+            let at = |y: usize, x: usize| input[(c * h + y) * w + x];
+            ly0 * (lx0 * at(y0, x0) + lx1 * at(y0, x1)) + ly1 * (lx0 * at(y1, x0) + lx1 * at(y1, x1))
+        };
         let line = |pixels: Vec<(usize, usize)>| -> Vec<f32> {
-            pixels.into_iter().flat_map(|(y, x)| (0..cin).map(move |c| upsampled(plane(c), h, w, y, x))).collect()
+            pixels.into_iter().flat_map(|(y, x)| (0..cin).map(move |c| upsampled(c, y, x))).collect()
         };
         Self {
             cin,
@@ -356,19 +364,6 @@ fn beyond_the_edge(edges: &Edges, kernels: &EdgeKernels, (oy, ox): (usize, usize
             }
         }
     }
-}
-
-/// Pixel `(y, x)` of the `h x w` plane upsampled bilinearly by 2 with half-pixel centres (as
-/// [`crate::nn::ops::upsample_bilinear_to`]).
-fn upsampled(plane: &[f32], h: usize, w: usize, y: usize, x: usize) -> f32 {
-    let taps = |i: usize, n: usize| {
-        let m = i / 2;
-        let other = if i.is_multiple_of(2) { m.saturating_sub(1) } else { (m + 1).min(n - 1) };
-        (m, other)
-    };
-    let ((y0, y1), (x0, x1)) = (taps(y, h), taps(x, w));
-    let at = |y: usize, x: usize| plane[y * w + x];
-    0.75 * (0.75 * at(y0, x0) + 0.25 * at(y0, x1)) + 0.25 * (0.75 * at(y1, x0) + 0.25 * at(y1, x1))
 }
 
 #[cfg(test)]
