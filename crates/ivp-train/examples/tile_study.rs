@@ -36,12 +36,28 @@ struct Tally {
 
 fn main() -> anyhow::Result<()> {
     let args: Vec<String> = std::env::args().skip(1).collect();
-    anyhow::ensure!((3..=4).contains(&args.len()), "usage: tile_study MODEL DATA TARGETS [SCALE] (e.g. 6,8,10 auto)");
+    anyhow::ensure!(
+        (3..=5).contains(&args.len()),
+        "usage: tile_study MODEL DATA TARGETS [SCALE [SHAPES]] (e.g. 6,8,10 auto 16x32,32x32)"
+    );
     let scale: Scale = args.get(3).map_or("auto", String::as_str).parse().map_err(anyhow::Error::msg)?;
     let (net, _) = ivp_train::checkpoint::load_model(Path::new(&args[0]))?;
     let targets: Vec<usize> = args[2].split(',').map(str::parse).collect::<Result<_, _>>()?;
     let mut coverages = vec![Coverage::Dense];
-    coverages.extend(SHAPES.iter().map(|&(core, margin)| Coverage::Sparse(TileShape::new(core, margin).unwrap())));
+    let shapes: Vec<(usize, usize)> = match args.get(4) {
+        Some(list) => list
+            .split(',')
+            .map(|shape| {
+                let (core, margin) =
+                    shape.split_once('x').ok_or_else(|| anyhow::anyhow!("shape `{shape}`: CORExMARGIN"))?;
+                Ok((core.parse()?, margin.parse()?))
+            })
+            .collect::<anyhow::Result<_>>()?,
+        None => SHAPES.to_vec(),
+    };
+    for (core, margin) in shapes {
+        coverages.push(Coverage::Sparse(TileShape::new(core, margin).map_err(anyhow::Error::msg)?));
+    }
     let mut tallies: Vec<Tally> = coverages.iter().map(|_| Tally::default()).collect();
     for dir in ivp_data::find_clips(Path::new(&args[1]))? {
         let clip = ivp_data::Clip::open(&dir)?;

@@ -193,10 +193,28 @@ pub fn infill_iteratively(
     let classes = holes.classes();
     let mut remaining: Vec<usize> =
         (0..classes.len()).into_par_iter().filter(|&i| classes[i] == PixelClass::Disocclusion).collect();
+    let original_known = holes.known();
+    // The search structure of the original known mask (it serves the thresholds, the `fill`
+    // fallback and the new regions) is built while the frame's buffers are copied: the copies
+    // are each one thread's work at memory speed, and at 1080p took as long as the search.
+    let ((nearest, mut thresholds), (outputs, working)) = rayon::join(
+        || {
+            let nearest = NearestKnown::new(w, h, &original_known);
+            // Aligned with `remaining`, and shrunk with it.
+            let thresholds = background_depth_thresholds_at(&nearest, warped_depth, &remaining);
+            (nearest, thresholds)
+        },
+        || {
+            rayon::join(
+                || Outputs::new(warped),
+                || (!remaining.is_empty()).then(|| Working::new(warped_depth, prior, &original_known, &remaining)),
+            )
+        },
+    );
     let mut out = IterativeInfill {
-        image: warped.clone(),
-        vectors: VectorField::zeros(w, h),
-        composed_vectors: VectorField::zeros(w, h),
+        image: outputs.image,
+        vectors: outputs.vectors,
+        composed_vectors: outputs.composed_vectors,
         filled_per_iteration: vec![0; iterations],
         walked: 0,
         fell_back: 0,
@@ -204,27 +222,7 @@ pub fn infill_iteratively(
         predict_time: Duration::ZERO,
         other_time: Duration::ZERO,
     };
-
-    // One search structure of the original known mask serves the thresholds, the `fill`
-    // fallback and the new regions.
-    let original_known = holes.known();
-    let nearest = NearestKnown::new(w, h, &original_known);
-    if !remaining.is_empty() {
-        // Aligned with `remaining`, and shrunk with it.
-        let mut thresholds = background_depth_thresholds_at(&nearest, warped_depth, &remaining);
-        let mut depth_map = warped_depth.clone();
-        depth_map.pixels_mut().par_iter_mut().zip(&original_known).for_each(|(z, &k)| {
-            if !k {
-                *z = [0.0];
-            }
-        });
-        let mut known = original_known.clone();
-        let mut sources = vec![[0f32; 2]; w * h];
-        let mut prior = prior.clone();
-        let mut to_fill = vec![false; w * h];
-        for &i in &remaining {
-            to_fill[i] = true;
-        }
+    if let Some(Working { depth: mut depth_map, mut known, mut sources, mut prior, mut to_fill }) = working {
         for (iteration, filled) in out.filled_per_iteration.iter_mut().enumerate() {
             if remaining.is_empty() {
                 break;
@@ -302,6 +300,55 @@ pub fn infill_iteratively(
     fill_new_regions_with(&mut out.image, holes, &nearest);
     out.other_time = start.elapsed().saturating_sub(out.predict_time);
     Ok(out)
+}
+
+/// The frame-sized outputs before the first iteration: the warped frame, no vectors yet.
+struct Outputs {
+    image: RgbImage,
+    vectors: VectorField,
+    composed_vectors: VectorField,
+}
+
+impl Outputs {
+    fn new(warped: &RgbImage) -> Self {
+        let (w, h) = (warped.width(), warped.height());
+        let (image, (vectors, composed_vectors)) =
+            rayon::join(|| warped.clone(), || rayon::join(|| VectorField::zeros(w, h), || VectorField::zeros(w, h)));
+        Self { image, vectors, composed_vectors }
+    }
+}
+
+/// What the iterations update and the predictor reads, before the first iteration (see
+/// [`State`]): built side by side, each a copy at memory speed.
+struct Working {
+    /// The warped depth, 0 where not known.
+    depth: DepthMap,
+    known: Vec<bool>,
+    sources: Vec<[f32; 2]>,
+    prior: VectorField,
+    /// The disocclusion pixels still to fill.
+    to_fill: Vec<bool>,
+}
+
+impl Working {
+    fn new(warped_depth: &DepthMap, prior: &VectorField, original_known: &[bool], remaining: &[usize]) -> Self {
+        let n = original_known.len();
+        let depth_where_known = || {
+            let depths = warped_depth.pixels().iter().zip(original_known);
+            let pixels = depths.map(|(&z, &k)| if k { z } else { [0.0] }).collect();
+            DepthMap::from_pixels(warped_depth.width(), warped_depth.height(), pixels)
+        };
+        let to_fill = || {
+            let mut to_fill = vec![false; n];
+            remaining.iter().for_each(|&i| to_fill[i] = true);
+            to_fill
+        };
+        let ((depth, known), ((sources, prior), to_fill)) = rayon::join(
+            || rayon::join(depth_where_known, || original_known.to_vec()),
+            || rayon::join(|| rayon::join(|| vec![[0f32; 2]; n], || prior.clone()), to_fill),
+        );
+        Self { depth, known, sources, prior, to_fill }
+    }
 }
 
 /// Iterations `1..P-1`: keep the vector if it reads a known corner at depth >= the threshold.

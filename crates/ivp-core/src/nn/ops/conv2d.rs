@@ -344,7 +344,8 @@ unsafe fn matmul(m: usize, n: usize, k: usize, dst: Mat, accumulate: bool, lhs: 
 
 /// `out (m x n) += lhs (m x k) rhs (k x n)` on the calling thread, each a row-major matrix given
 /// as a slice that starts at its first element and its row stride (which may exceed its width:
-/// a block of a larger matrix).
+/// a block of a larger matrix). The operands' rows may overlap (a stride below the width reads
+/// a sliding window of one line); the output's may not.
 pub(crate) fn add_product(
     (m, n, k): (usize, usize, usize),
     (lhs, lhs_stride): (&[f32], usize),
@@ -355,10 +356,13 @@ pub(crate) fn add_product(
         return;
     }
     let fits = |len: usize, rows: usize, cols: usize, stride: usize| {
-        stride >= cols && (rows == 0 || cols == 0 || len >= (rows - 1) * stride + cols)
+        rows == 0 || cols == 0 || len >= (rows - 1) * stride + cols
     };
     assert!(
-        fits(lhs.len(), m, k, lhs_stride) && fits(rhs.len(), k, n, rhs_stride) && fits(out.len(), m, n, out_stride),
+        fits(lhs.len(), m, k, lhs_stride)
+            && fits(rhs.len(), k, n, rhs_stride)
+            && fits(out.len(), m, n, out_stride)
+            && out_stride >= n,
         "add_product: the slices do not hold the matrices"
     );
     // SAFETY: each slice holds its matrix with these strides (checked above), and `out` is

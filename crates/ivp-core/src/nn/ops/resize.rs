@@ -255,13 +255,21 @@ impl CustomOp1 for Bilinear {
         let mut out = vec![0f32; batch * c * height * width];
         if height * width > 0 {
             let (ty, tx) = (bilinear_taps(h, height), bilinear_taps(w, width));
-            out.par_chunks_mut(width).enumerate().for_each(|(r, row)| {
-                let (plane, oy) = (r / height, r % height);
-                let (y0, y1, ly0, ly1) = ty[oy];
-                let r0 = &x[(plane * h + y0) * w..][..w];
-                let r1 = &x[(plane * h + y1) * w..][..w];
-                for (o, &(x0, x1, lx0, lx1)) in row.iter_mut().zip(&tx) {
-                    *o = ly0 * (lx0 * r0[x0] + lx1 * r0[x1]) + ly1 * (lx0 * r1[x0] + lx1 * r1[x1]);
+            // Plane by plane: each input row interpolated along its columns once, then each output
+            // row as a mix of two of those (upsampling by 2, four output rows read each input
+            // row). The same operations as mixing along the columns for every output row.
+            out.par_chunks_mut(height * width).zip(x.par_chunks(h * w)).for_each(|(out, plane)| {
+                let mut along_columns = vec![0f32; h * width];
+                for (row, input) in along_columns.chunks_exact_mut(width).zip(plane.chunks_exact(w)) {
+                    for (o, &(x0, x1, lx0, lx1)) in row.iter_mut().zip(&tx) {
+                        *o = lx0 * input[x0] + lx1 * input[x1];
+                    }
+                }
+                for (row, &(y0, y1, ly0, ly1)) in out.chunks_exact_mut(width).zip(&ty) {
+                    let (r0, r1) = (&along_columns[y0 * width..][..width], &along_columns[y1 * width..][..width]);
+                    for ((o, &a), &b) in row.iter_mut().zip(r0).zip(r1) {
+                        *o = ly0 * a + ly1 * b;
+                    }
                 }
             });
         }

@@ -19,6 +19,7 @@ use std::sync::{Arc, Mutex};
 use candle_core::{bail, Device, Result, Tensor};
 use rayon::prelude::*;
 
+use crate::nn::ops::conv2d::add_product;
 use crate::nn::ops::resize::bilinear_taps;
 use crate::nn::ops::{conv2d, profile};
 
@@ -42,19 +43,13 @@ pub fn conv2d_of_upsampled(x: &Tensor, weight: &Tensor, bias: &Tensor, relu: boo
         // (B, 4 Cout, h, w): channel `phase * Cout + co`.
         let by_phase = conv2d(&padded, &prepared.phases, Some(&prepared.bias4), 1, 0)?;
         let by_phase: Vec<f32> = by_phase.flatten_all()?.to_vec1()?;
-        let kernels = &prepared.edges;
         let input: Vec<f32> = x.flatten_all()?.to_vec1()?;
         let (height, width) = (2 * h, 2 * w);
-        let border = Border::new(height, width, k / 2);
-        // What the taps beyond the edge added at each border pixel, for every output channel.
-        let edges: Vec<Edges> = input.chunks_exact(cin * h * w).map(|x| Edges::new(x, cin, h, w)).collect();
-        let pixels: Vec<(usize, usize, usize)> =
-            (0..b).flat_map(|image| border.pixels().map(move |(oy, ox)| (image, oy, ox))).collect();
-        let mut corrections = vec![0f32; pixels.len() * cout];
-        corrections
-            .par_chunks_mut(cout)
-            .zip(&pixels)
-            .for_each(|(sum, &(image, oy, ox))| beyond_the_edge(&edges[image], kernels, (oy, ox), sum));
+        // What the taps beyond the edge added at the border pixels, per image.
+        let corrections: Vec<Corrections> = input
+            .par_chunks_exact(cin * h * w)
+            .map(|x| Corrections::new(&Edges::new(x, cin, h, w), &prepared.edges))
+            .collect();
         // Each output row from its two phases, less the border's corrections, then the ReLU.
         let mut out = vec![0f32; b * cout * height * width];
         out.par_chunks_mut(width).enumerate().for_each(|(row, pixels)| {
@@ -67,10 +62,7 @@ pub fn conv2d_of_upsampled(x: &Tensor, weight: &Tensor, bias: &Tensor, relu: boo
             for ((pair, even), odd) in pixels.chunks_mut(2).zip(phase_row(0)).zip(phase_row(1)) {
                 (pair[0], pair[1]) = (*even, *odd);
             }
-            let first = image * border.per_image + border.row_start[oy];
-            for (i, v) in border.in_row(oy, pixels).enumerate() {
-                *v -= corrections[(first + i) * cout + co];
-            }
+            corrections[image].subtract_from_row(oy, co, pixels);
             if relu {
                 pixels.iter_mut().for_each(|v| *v = v.max(0.0));
             }
@@ -120,47 +112,6 @@ impl Prepared {
         }
         kept.push((key, prepared.clone()));
         Ok(prepared)
-    }
-}
-
-/// The pixels of a `height x width` map within `r` of its edge, row-major: whole rows in the top
-/// and bottom bands (and everywhere when the map is at most `2 r` wide), else the first and last
-/// `r` pixels of a row.
-struct Border {
-    height: usize,
-    width: usize,
-    r: usize,
-    /// Index of each row's first border pixel among those of the map.
-    row_start: Vec<usize>,
-    /// Border pixels of the map.
-    per_image: usize,
-}
-
-impl Border {
-    fn new(height: usize, width: usize, r: usize) -> Self {
-        let mut border = Self { height, width, r, row_start: Vec::with_capacity(height), per_image: 0 };
-        for oy in 0..height {
-            border.row_start.push(border.per_image);
-            border.per_image += if border.whole_row(oy) { width } else { 2 * r };
-        }
-        border
-    }
-
-    fn whole_row(&self, oy: usize) -> bool {
-        oy < self.r || oy + self.r >= self.height || self.width <= 2 * self.r
-    }
-
-    fn pixels(&self) -> impl Iterator<Item = (usize, usize)> + '_ {
-        (0..self.height)
-            .flat_map(move |oy| (0..self.width).map(move |ox| (oy, ox)))
-            .filter(|&(oy, ox)| self.whole_row(oy) || ox < self.r || ox + self.r >= self.width)
-    }
-
-    /// The border pixels of `row` (row `oy` of the map), in order.
-    fn in_row<'a>(&self, oy: usize, row: &'a mut [f32]) -> impl Iterator<Item = &'a mut f32> {
-        let (first, rest) = row.split_at_mut(if self.whole_row(oy) { self.width } else { self.r });
-        let last_start = if self.whole_row(oy) { rest.len() } else { rest.len() - self.r };
-        first.iter_mut().chain(rest[last_start..].iter_mut())
     }
 }
 
@@ -236,13 +187,16 @@ fn pad_by_repeating(x: &Tensor, pad: usize) -> Result<Tensor> {
 /// The upsampled map's outermost rows and columns, each pixel's channels together: all that the
 /// taps beyond its edge read when it is taken as repeated there.
 struct Edges {
-    cin: usize,
     height: usize,
-    width: usize,
-    top: Vec<f32>,
-    bottom: Vec<f32>,
-    left: Vec<f32>,
-    right: Vec<f32>,
+    lines: Sides<Vec<f32>>,
+}
+
+/// One of a thing for each side of a map.
+struct Sides<T> {
+    top: T,
+    bottom: T,
+    left: T,
+    right: T,
 }
 
 impl Edges {
@@ -260,46 +214,28 @@ impl Edges {
             pixels.into_iter().flat_map(|(y, x)| (0..cin).map(move |c| upsampled(c, y, x))).collect()
         };
         Self {
-            cin,
             height,
-            width,
-            top: line((0..width).map(|x| (0, x)).collect()),
-            bottom: line((0..width).map(|x| (height - 1, x)).collect()),
-            left: line((0..height).map(|y| (y, 0)).collect()),
-            right: line((0..height).map(|y| (y, width - 1)).collect()),
+            lines: Sides {
+                top: line((0..width).map(|x| (0, x)).collect()),
+                bottom: line((0..width).map(|x| (height - 1, x)).collect()),
+                left: line((0..height).map(|y| (y, 0)).collect()),
+                right: line((0..height).map(|y| (y, width - 1)).collect()),
+            },
         }
-    }
-
-    /// The channels at `(y, x)`, a pixel on the edge.
-    fn at(&self, y: usize, x: usize) -> &[f32] {
-        let (line, i) = if y == 0 {
-            (&self.top, x)
-        } else if y + 1 == self.height {
-            (&self.bottom, x)
-        } else if x == 0 {
-            (&self.left, y)
-        } else {
-            (&self.right, y)
-        };
-        &line[i * self.cin..][..self.cin]
     }
 }
 
 /// Sums of the kernel's taps over the rows (or columns) that fall beyond the edge, for every
 /// number of them: the taps beyond one edge all read that edge's pixel, so they act as one.
 /// Each is laid out (k, Cin, Cout): a tap's weights for every output channel together.
+///
+/// `[n - 1]` of a side: the `n` rows (columns) of taps nearest that side summed, as a row
+/// (column) of `k` taps along the edge.
 struct EdgeKernels {
     k: usize,
     cin: usize,
     cout: usize,
-    /// `[n - 1]`: the first `n` rows summed, as a row of `k` taps along the columns.
-    top: Vec<Vec<f32>>,
-    /// `[n - 1]`: the last `n` rows summed.
-    bottom: Vec<Vec<f32>>,
-    /// `[n - 1]`: the first `n` columns summed, as a column of `k` taps along the rows.
-    left: Vec<Vec<f32>>,
-    /// `[n - 1]`: the last `n` columns summed.
-    right: Vec<Vec<f32>>,
+    sides: Sides<Vec<Vec<f32>>>,
 }
 
 impl EdgeKernels {
@@ -323,44 +259,86 @@ impl EdgeKernels {
             k,
             cin,
             cout,
-            top: (1..=r).map(|n| summed(0..n, true)).collect(),
-            bottom: (1..=r).map(|n| summed(k - n..k, true)).collect(),
-            left: (1..=r).map(|n| summed(0..n, false)).collect(),
-            right: (1..=r).map(|n| summed(k - n..k, false)).collect(),
+            sides: Sides {
+                top: (1..=r).map(|n| summed(0..n, true)).collect(),
+                bottom: (1..=r).map(|n| summed(k - n..k, true)).collect(),
+                left: (1..=r).map(|n| summed(0..n, false)).collect(),
+                right: (1..=r).map(|n| summed(k - n..k, false)).collect(),
+            },
         }
     }
 }
 
-/// Adds to `sum` (one per output channel) what the taps that fall beyond the upsampled map add to
-/// output pixel `(oy, ox)` when the map is taken as repeated past its edge: the rows beyond the
-/// top or bottom edge (all their columns), then the columns beyond the left or right edge (the
-/// rows inside only).
-fn beyond_the_edge(edges: &Edges, kernels: &EdgeKernels, (oy, ox): (usize, usize), sum: &mut [f32]) {
-    let (k, cin, cout) = (kernels.k, kernels.cin, kernels.cout);
-    let r = k / 2;
-    let (height, width) = (edges.height, edges.width);
-    // How many of the rows (columns) of taps fall beyond each edge.
-    let (above, below) = (r.saturating_sub(oy).min(k), (oy + r + 1).saturating_sub(height).min(k));
-    let (before, after) = (r.saturating_sub(ox).min(k), (ox + r + 1).saturating_sub(width).min(k));
-    let mut add = |taps: &[f32], t: usize, channels: &[f32]| {
-        let weights = &taps[t * cin * cout..][..cin * cout];
-        for (weights, &u) in weights.chunks_exact(cout).zip(channels) {
-            sum.iter_mut().zip(weights).for_each(|(s, w)| *s += w * u);
-        }
-    };
-    let clamp = |i: isize, n: usize| i.clamp(0, n as isize - 1) as usize;
-    for (n, kernels, y) in [(above, &kernels.top, 0), (below, &kernels.bottom, height - 1)] {
-        if n > 0 {
-            for tx in 0..k {
-                add(&kernels[n - 1], tx, edges.at(y, clamp((ox + tx) as isize - r as isize, width)));
+/// What the taps beyond the upsampled map's edge add to its border pixels when the map is taken
+/// as repeated past its edge, for every output channel: `top[n - 1]` (`width x Cout`) for the row
+/// with `n` rows of taps beyond the top edge (row `r - n`), `left[n - 1]` (`height x Cout`) for
+/// the column with `n` columns of taps beyond the left edge, and so on.
+///
+/// Rows of taps beyond the top or bottom edge take every column (the edge row repeated along it,
+/// so its ends repeat too); columns of taps beyond the left or right edge take only the rows
+/// inside the map (the rows beyond are the top's and bottom's), which is the edge column padded
+/// with zeros. Either way a border line is a 1-D convolution of an edge line with a summed kernel
+/// ([`EdgeKernels`]): one matrix product per line, whose left operand is the padded edge line
+/// read with overlapping rows.
+struct Corrections {
+    cout: usize,
+    height: usize,
+    sides: Sides<Vec<Vec<f32>>>,
+}
+
+impl Corrections {
+    fn new(edges: &Edges, kernels: &EdgeKernels) -> Self {
+        let (k, cin, cout) = (kernels.k, kernels.cin, kernels.cout);
+        let r = k / 2;
+        let along = |line: &[f32], repeat: bool, kernels: &[Vec<f32>]| -> Vec<Vec<f32>> {
+            let n = line.len() / cin;
+            let mut padded = vec![0f32; (n + 2 * r) * cin];
+            padded[r * cin..][..n * cin].copy_from_slice(line);
+            if repeat {
+                for i in 0..r {
+                    padded.copy_within(r * cin..(r + 1) * cin, i * cin);
+                    padded.copy_within((r + n - 1) * cin..(r + n) * cin, (r + n + i) * cin);
+                }
             }
+            kernels
+                .iter()
+                .map(|kernel| {
+                    let mut out = vec![0f32; n * cout];
+                    add_product((n, cout, k * cin), (&padded, cin), (kernel, cout), (&mut out, cout));
+                    out
+                })
+                .collect()
+        };
+        Self {
+            cout,
+            height: edges.height,
+            sides: Sides {
+                top: along(&edges.lines.top, true, &kernels.sides.top),
+                bottom: along(&edges.lines.bottom, true, &kernels.sides.bottom),
+                left: along(&edges.lines.left, false, &kernels.sides.left),
+                right: along(&edges.lines.right, false, &kernels.sides.right),
+            },
         }
     }
-    let inside_rows = above..k - below;
-    for (n, kernels, x) in [(before, &kernels.left, 0), (after, &kernels.right, width - 1)] {
-        if n > 0 {
-            for ty in inside_rows.clone() {
-                add(&kernels[n - 1], ty, edges.at(oy + ty - r, x));
+
+    /// Subtracts the corrections of channel `co` from row `oy` of the output map (`pixels`).
+    fn subtract_from_row(&self, oy: usize, co: usize, pixels: &mut [f32]) {
+        let (height, width, r, c) = (self.height, pixels.len(), self.sides.top.len(), self.cout);
+        // Rows of taps beyond the top and the bottom edge, at every pixel of the row.
+        let (above, below) = (r.saturating_sub(oy), (oy + r + 1).saturating_sub(height));
+        for (n, lines) in [(above, &self.sides.top), (below, &self.sides.bottom)] {
+            if n > 0 {
+                let line = &lines[n - 1];
+                pixels.iter_mut().enumerate().for_each(|(ox, v)| *v -= line[ox * c + co]);
+            }
+        }
+        // Columns of taps beyond the left and the right edge, at the first and last pixels.
+        for ox in (0..r.min(width)).chain(width.saturating_sub(r).max(r)..width) {
+            let (before, after) = (r.saturating_sub(ox), (ox + r + 1).saturating_sub(width));
+            for (n, lines) in [(before, &self.sides.left), (after, &self.sides.right)] {
+                if n > 0 {
+                    pixels[ox] -= lines[n - 1][oy * c + co];
+                }
             }
         }
     }
