@@ -96,10 +96,13 @@ impl NearestKnown {
         let lines = known
             .par_chunks(width.max(1))
             .map(|row| {
+                // A byte search for the next `false` (0) and `true` (1): a loop over the bools
+                // that stops at the first one does not vectorise.
+                let bytes = as_bytes(row);
                 let mut runs = Vec::new();
                 let mut u = 0;
-                while let Some(start) = row[u..].iter().position(|&k| !k).map(|i| u + i) {
-                    let end = row[start..].iter().position(|&k| k).map_or(row.len(), |i| start + i);
+                while let Some(start) = memchr::memchr(0, &bytes[u..]).map(|i| u + i) {
+                    let end = memchr::memchr(1, &bytes[start..]).map_or(row.len(), |i| start + i);
                     runs.push((start as u32, end as u32));
                     u = end;
                 }
@@ -177,6 +180,13 @@ impl NearestKnown {
     pub fn around(&self, p: Pixel) -> [Option<Pixel>; 4] {
         Direction::ALL.map(|dir| self.beyond(p, dir))
     }
+}
+
+/// The bytes of a mask: `false` is 0 and `true` is 1.
+fn as_bytes(mask: &[bool]) -> &[u8] {
+    // SAFETY: a bool is one byte holding 0 or 1, so any slice of bools is a valid slice of bytes
+    // of the same length; the borrow keeps the bools alive and unchanged.
+    unsafe { std::slice::from_raw_parts(mask.as_ptr().cast::<u8>(), mask.len()) }
 }
 
 #[cfg(test)]

@@ -218,9 +218,20 @@ pub fn shrunk_temporal_prior(ctx: &InfillContext<'_>, factor: usize) -> Option<V
 /// A `w x h` field in which each pixel marked in `at` takes `s` times the vector of its block of
 /// `coarse` (vectors are in pixels, so they grow with the frame); the others are 0.
 fn grow_vectors(coarse: &VectorField, s: usize, w: usize, h: usize, at: &[bool]) -> VectorField {
+    match s {
+        2 => grow_vectors_by::<2>(coarse, s, w, h, at),
+        3 => grow_vectors_by::<3>(coarse, s, w, h, at),
+        4 => grow_vectors_by::<4>(coarse, s, w, h, at),
+        _ => grow_vectors_by::<0>(coarse, s, w, h, at),
+    }
+}
+
+/// [`grow_vectors`] for blocks of `S` (of `s` when `S` is 0; see [`shrink_blocks_by`]).
+fn grow_vectors_by<const S: usize>(coarse: &VectorField, s: usize, w: usize, h: usize, at: &[bool]) -> VectorField {
     let grown = s as f32;
     let mut field = VectorField::zeros(w, h);
     field.pixels_mut().par_chunks_mut(w.max(1)).enumerate().for_each(|(v, row)| {
+        let s = if S == 0 { s } else { S };
         let marks = row.chunks_mut(s).zip(at[v * w..(v + 1) * w].chunks(s));
         for ((out, at), &[x, y]) in marks.zip(coarse.row(v / s)) {
             for (out, _) in out.iter_mut().zip(at).filter(|(_, &at)| at) {

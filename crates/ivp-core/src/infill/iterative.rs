@@ -190,9 +190,7 @@ pub fn infill_iteratively(
         return Err(size_error("the prior", prior.width(), prior.height(), w, h));
     }
 
-    let classes = holes.classes();
-    let mut remaining: Vec<usize> =
-        (0..classes.len()).into_par_iter().filter(|&i| classes[i] == PixelClass::Disocclusion).collect();
+    let mut remaining = holes.indices_of(PixelClass::Disocclusion);
     let original_known = holes.known();
     // The search structure of the original known mask (it serves the thresholds, the `fill`
     // fallback and the new regions) is built while the frame's buffers are copied: the copies
