@@ -153,11 +153,26 @@ fn points_to_predict(frame: &NetworkFrame<'_>, batch: &[&Tile]) -> Vec<Pixel> {
 
 impl VectorPredictor for NetworkPredictor<'_> {
     fn predict(&self, prior: &VectorField, depth: &DepthMap, holes: &[bool]) -> Result<VectorField, InfillError> {
+        let mut vectors = VectorField::zeros(depth.width(), depth.height());
+        self.predict_into(prior, depth, holes, &mut vectors)?;
+        Ok(vectors)
+    }
+
+    /// Writes the vectors of every pixel of `holes` (each lies in a tile's core) and nothing else.
+    fn predict_into(
+        &self,
+        prior: &VectorField,
+        depth: &DepthMap,
+        holes: &[bool],
+        vectors: &mut VectorField,
+    ) -> Result<(), InfillError> {
         if !self.net.config().variant.predicts_vectors() {
             return Err(InfillError::Other("the intensity variant predicts colours, not vectors".into()));
         }
-        if !prior.same_size(depth) || holes.len() != depth.len() {
-            return Err(InfillError::Other("the prior, depth and holes given to the network differ in size".into()));
+        if !prior.same_size(depth) || holes.len() != depth.len() || !vectors.same_size(depth) {
+            return Err(InfillError::Other(
+                "the prior, depth, holes and vectors given to the network differ in size".into(),
+            ));
         }
         let frame = NetworkFrame::new(prior, depth, holes, self.factor);
         let whole = frame.whole();
@@ -183,9 +198,8 @@ impl VectorPredictor for NetworkPredictor<'_> {
                 }
             }
         };
-        let mut vectors = VectorField::zeros(depth.width(), depth.height());
         let non_finite =
-            self.run_tiles(&frame, &tiles, &mut vectors).map_err(|e| InfillError::Other(format!("network: {e}")))?;
+            self.run_tiles(&frame, &tiles, vectors).map_err(|e| InfillError::Other(format!("network: {e}")))?;
         if non_finite > 0 {
             // Broken weights or inputs must not pass for a prediction (the iterative infilling
             // would silently fall back to `fill`).
@@ -195,7 +209,7 @@ impl VectorPredictor for NetworkPredictor<'_> {
                  weights or inputs are broken"
             )));
         }
-        Ok(vectors)
+        Ok(())
     }
 }
 
@@ -309,6 +323,26 @@ mod tests {
                     assert_eq!(*v == [0.0, 0.0], !holes[i], "factor {factor}, pixel {i}: {v:?}");
                 }
             }
+        }
+    }
+
+    #[test]
+    fn predicting_into_a_used_field_writes_the_holes_only() {
+        let (net, _) = IvpNet::seeded(ModelConfig::new(Variant::Full, 0.125), 5).unwrap();
+        let (w, h) = (480, 320);
+        let (prior, depth, holes) = frame(w, h);
+        let stale = |u: usize, v: usize| [u as f32, -(v as f32)];
+        for (coverage, factor) in [(Coverage::Dense, 1), (Coverage::default(), 1), (Coverage::default(), 2)] {
+            let predictor = NetworkPredictor::new(&net, coverage, factor);
+            let fresh = predictor.predict(&prior, &depth, &holes).unwrap();
+            let mut used = VectorField::from_fn(w, h, stale);
+            predictor.predict_into(&prior, &depth, &holes, &mut used).unwrap();
+            for (i, (got, want)) in used.pixels().iter().zip(fresh.pixels()).enumerate() {
+                let expected = if holes[i] { *want } else { stale(i % w, i / w) };
+                assert_eq!(*got, expected, "{coverage:?} factor {factor}, pixel {i}");
+            }
+            let mut wrong_size = VectorField::zeros(w, h - 1);
+            assert!(predictor.predict_into(&prior, &depth, &holes, &mut wrong_size).is_err());
         }
     }
 

@@ -49,25 +49,45 @@ pub trait VectorPredictor: Send + Sync {
     /// Returns vectors in pixels (channel 0 = column offset, 1 = row offset), of the size of
     /// `depth`. Values outside `holes` are ignored (they should be zero).
     fn predict(&self, prior: &VectorField, depth: &DepthMap, holes: &[bool]) -> Result<VectorField, InfillError>;
-}
 
-impl<T: VectorPredictor + ?Sized> VectorPredictor for &T {
-    fn predict(&self, prior: &VectorField, depth: &DepthMap, holes: &[bool]) -> Result<VectorField, InfillError> {
-        (**self).predict(prior, depth, holes)
+    /// [`VectorPredictor::predict`] into `out` (of the size of `depth`): the vectors at the pixels
+    /// of `holes`; `out` may keep whatever it held elsewhere. The iterative infilling passes one
+    /// field to every iteration, so that a predictor that writes the holes only allocates and
+    /// clears no frame-sized field per call. By default, `predict`'s field replaces `out`.
+    fn predict_into(
+        &self,
+        prior: &VectorField,
+        depth: &DepthMap,
+        holes: &[bool],
+        out: &mut VectorField,
+    ) -> Result<(), InfillError> {
+        *out = self.predict(prior, depth, holes)?;
+        Ok(())
     }
 }
 
-impl<T: VectorPredictor + ?Sized> VectorPredictor for Box<T> {
-    fn predict(&self, prior: &VectorField, depth: &DepthMap, holes: &[bool]) -> Result<VectorField, InfillError> {
-        (**self).predict(prior, depth, holes)
-    }
+/// A predictor behind a pointer is the predictor itself.
+macro_rules! forward_vector_predictor {
+    ($($pointer:ty),*) => {$(
+        impl<T: VectorPredictor + ?Sized> VectorPredictor for $pointer {
+            fn predict(&self, prior: &VectorField, depth: &DepthMap, holes: &[bool]) -> Result<VectorField, InfillError> {
+                (**self).predict(prior, depth, holes)
+            }
+
+            fn predict_into(
+                &self,
+                prior: &VectorField,
+                depth: &DepthMap,
+                holes: &[bool],
+                out: &mut VectorField,
+            ) -> Result<(), InfillError> {
+                (**self).predict_into(prior, depth, holes, out)
+            }
+        }
+    )*};
 }
 
-impl<T: VectorPredictor + ?Sized> VectorPredictor for Arc<T> {
-    fn predict(&self, prior: &VectorField, depth: &DepthMap, holes: &[bool]) -> Result<VectorField, InfillError> {
-        (**self).predict(prior, depth, holes)
-    }
-}
+forward_vector_predictor!(&T, Box<T>, Arc<T>);
 
 // ---------------------------------------------------------------------------------------------
 // Iterative infilling
@@ -220,14 +240,16 @@ pub fn infill_iteratively(
         predict_time: Duration::ZERO,
         other_time: Duration::ZERO,
     };
-    if let Some(Working { depth: mut depth_map, mut known, mut sources, mut prior, mut to_fill }) = working {
+    if let Some(Working { depth: mut depth_map, mut known, mut sources, mut prior, mut to_fill, mut predicted }) =
+        working
+    {
         for (iteration, filled) in out.filled_per_iteration.iter_mut().enumerate() {
             if remaining.is_empty() {
                 break;
             }
             let last = iteration + 1 == iterations;
             let predict_start = Instant::now();
-            let predicted = predictor.predict(&prior, &depth_map, &to_fill)?;
+            predictor.predict_into(&prior, &depth_map, &to_fill, &mut predicted)?;
             out.predict_time += predict_start.elapsed();
             out.predictions += 1;
             if !predicted.same_size(warped) {
@@ -326,6 +348,8 @@ struct Working {
     prior: VectorField,
     /// The disocclusion pixels still to fill.
     to_fill: Vec<bool>,
+    /// The predictor's vectors, read at the pixels still to fill.
+    predicted: VectorField,
 }
 
 impl Working {
@@ -341,11 +365,12 @@ impl Working {
             remaining.iter().for_each(|&i| to_fill[i] = true);
             to_fill
         };
-        let ((depth, known), ((sources, prior), to_fill)) = rayon::join(
-            || rayon::join(depth_where_known, || original_known.to_vec()),
+        let (w, h) = (warped_depth.width(), warped_depth.height());
+        let (((depth, known), predicted), ((sources, prior), to_fill)) = rayon::join(
+            || rayon::join(|| rayon::join(depth_where_known, || original_known.to_vec()), || VectorField::zeros(w, h)),
             || rayon::join(|| rayon::join(|| vec![[0f32; 2]; n], || prior.clone()), to_fill),
         );
-        Self { depth, known, sources, prior, to_fill }
+        Self { depth, known, sources, prior, to_fill, predicted }
     }
 }
 
