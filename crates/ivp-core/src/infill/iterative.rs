@@ -210,7 +210,8 @@ pub fn infill_iteratively(
         return Err(size_error("the prior", prior.width(), prior.height(), w, h));
     }
 
-    let mut remaining = holes.indices_of(PixelClass::Disocclusion);
+    let disocclusions = holes.indices_of(PixelClass::Disocclusion);
+    let mut remaining = disocclusions.clone();
     let original_known = holes.known();
     // The search structure of the original known mask (it serves the thresholds, the `fill`
     // fallback and the new regions) is built while the frame's buffers are copied: the copies
@@ -232,7 +233,8 @@ pub fn infill_iteratively(
     let mut out = IterativeInfill {
         image: outputs.image,
         vectors: outputs.vectors,
-        composed_vectors: outputs.composed_vectors,
+        // Made from the composed sources once every pixel is filled (below).
+        composed_vectors: VectorField::zeros(0, 0),
         filled_per_iteration: vec![0; iterations],
         walked: 0,
         fell_back: 0,
@@ -292,19 +294,21 @@ pub fn infill_iteratively(
                     Outcome::Read { vector, colour, depth, source, walked } => {
                         out.image.pixels_mut()[i] = colour;
                         out.vectors.pixels_mut()[i] = vector;
-                        out.composed_vectors.pixels_mut()[i] = offset(source);
                         out.walked += usize::from(walked);
                         depth_map.pixels_mut()[i] = [depth];
                         sources[i] = source;
                         prior.pixels_mut()[i] = vector;
                     }
                     Outcome::Fill => {
-                        if let Some(q) = background_source(&nearest, warped_depth, p) {
-                            let to_source = offset([q.0 as f32, q.1 as f32]);
+                        // The source `fill` copied, else the pixel itself (a composed vector of 0).
+                        // Only the last iteration falls back, so no read sees this source.
+                        let q = background_source(&nearest, warped_depth, p);
+                        if let Some(q) = q {
                             out.image.pixels_mut()[i] = warped.get(q.0, q.1);
-                            out.vectors.pixels_mut()[i] = to_source;
-                            out.composed_vectors.pixels_mut()[i] = to_source;
+                            out.vectors.pixels_mut()[i] = offset([q.0 as f32, q.1 as f32]);
                         }
+                        let q = q.unwrap_or(p);
+                        sources[i] = [q.0 as f32, q.1 as f32];
                         out.fell_back += 1;
                     }
                 }
@@ -315,6 +319,15 @@ pub fn infill_iteratively(
             (remaining, thresholds) = (still_holes, still_thresholds);
         }
         debug_assert!(remaining.is_empty(), "the last iteration fills every pixel");
+        // Each filled pixel's composed vector is its source less its position (0 elsewhere):
+        // made in the sources' own buffer rather than in one more frame-sized field.
+        for &i in &disocclusions {
+            let (p, [x, y]) = ((i % w, i / w), sources[i]);
+            sources[i] = [x - p.0 as f32, y - p.1 as f32];
+        }
+        out.composed_vectors = VectorField::from_pixels(w, h, sources);
+    } else {
+        out.composed_vectors = VectorField::zeros(w, h);
     }
 
     fill_new_regions_with(&mut out.image, holes, &nearest);
@@ -326,15 +339,13 @@ pub fn infill_iteratively(
 struct Outputs {
     image: RgbImage,
     vectors: VectorField,
-    composed_vectors: VectorField,
 }
 
 impl Outputs {
     fn new(warped: &RgbImage) -> Self {
         let (w, h) = (warped.width(), warped.height());
-        let (image, (vectors, composed_vectors)) =
-            rayon::join(|| warped.clone(), || rayon::join(|| VectorField::zeros(w, h), || VectorField::zeros(w, h)));
-        Self { image, vectors, composed_vectors }
+        let (image, vectors) = rayon::join(|| warped.clone(), || VectorField::zeros(w, h));
+        Self { image, vectors }
     }
 }
 
