@@ -57,7 +57,7 @@ fn bench_stages(c: &mut Criterion) {
         })
     });
     group.bench_function("shrunk_temporal_prior_x2", |b| b.iter(|| shrunk_temporal_prior(&ctx, 2)));
-    let prior = VectorField::zeros(w, h);
+    let prior = shrunk_temporal_prior(&ctx, 2).expect("the clip has frame n - 2");
     // One sparse pass at factor 2 without the network: the frame's blocks of holes, the tile
     // plan, every tile's windows and every core's vectors written back.
     group.bench_function("sparse_pass_x2_around_the_network", |b| {
@@ -80,8 +80,10 @@ fn bench_stages(c: &mut Criterion) {
     let (net, _) = IvpNet::seeded(ModelConfig::new(Variant::Full, 0.25), 0).unwrap();
     let net = net.detached();
     let network = NetworkPredictor::new(&net, Coverage::default(), 2);
-    group
-        .bench_function("network_sparse_pass_x2", |b| b.iter(|| network.predict(&prior, &warp.depth, &holes).unwrap()));
+    let mut vectors = VectorField::zeros(w, h);
+    group.bench_function("network_sparse_pass_x2", |b| {
+        b.iter(|| network.predict_into(&prior, &warp.depth, &holes, &mut vectors).unwrap())
+    });
     group.bench_function("plan_tiles", |b| b.iter(|| plan_tiles(w, h, &holes, TileShape::DEFAULT)));
     for method in ["fill", "telea"] {
         let infiller = classical_infiller(method).unwrap();

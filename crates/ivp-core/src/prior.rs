@@ -4,6 +4,8 @@
 //! Layer: imports `geometry` only. [`target_prior`] is the one recipe of a target's prior, used by
 //! training samples (ivp-data) and by inference alike.
 
+use std::collections::HashMap;
+
 use glam::DMat4;
 use rayon::prelude::*;
 
@@ -30,6 +32,112 @@ pub const PRIOR_FRAME_GAP: f32 = 2.0;
 pub const THRESHOLD_PIXELS_PER_DIRECTION: usize = 5;
 /// At most this many of the smallest and of the largest depths are averaged into the threshold.
 pub const THRESHOLD_MAX_EXTREMES: usize = 5;
+
+// ---------------------------------------------------------------------------------------------
+// The prior as the iterative infilling keeps it
+// ---------------------------------------------------------------------------------------------
+
+/// A temporal prior at the scale it was measured on (ALGORITHMS.md §6.7), as the iterative
+/// infilling keeps it: `coarse` was measured on the frame shrunk by `factor` (1: the frame
+/// itself), and the prior reads as a full-size field in which every pixel takes `factor` times its
+/// block's vector (vectors are in pixels), except the pixels [`ScaledPrior::set`] since (the
+/// infilling sets each pixel it fills to the vector that filled it).
+///
+/// Why not a full-size field: the network reads the prior at the coarse scale again, so a 1080p
+/// frame grew its prior to 2 million pixels only to shrink it back tile by tile (~4 ms of 100).
+#[derive(Clone, Debug, PartialEq)]
+pub struct ScaledPrior {
+    coarse: VectorField,
+    factor: usize,
+    width: usize,
+    height: usize,
+    /// Full-size pixels set since, by row-major index (at factor 1 they are set in `coarse`).
+    set: HashMap<usize, [f32; 2]>,
+}
+
+impl ScaledPrior {
+    /// A prior measured on the frame itself.
+    pub fn full_size(field: VectorField) -> Self {
+        let (width, height) = (field.width(), field.height());
+        Self { coarse: field, factor: 1, width, height, set: HashMap::new() }
+    }
+
+    /// A prior measured on a `width x height` frame shrunk by `factor`: `coarse` has its size
+    /// divided by `factor`, rounded up (the last blocks partial).
+    pub fn scaled(coarse: VectorField, factor: usize, width: usize, height: usize) -> Self {
+        assert!(factor >= 1, "a scale factor is at least 1");
+        assert!(
+            coarse.width() == width.div_ceil(factor) && coarse.height() == height.div_ceil(factor),
+            "a {}x{} prior is not a {width}x{height} frame shrunk by {factor}",
+            coarse.width(),
+            coarse.height()
+        );
+        Self { coarse, factor, width, height, set: HashMap::new() }
+    }
+
+    /// No prior (zeros) for a `width x height` frame, kept at `factor`.
+    pub fn zeros(width: usize, height: usize, factor: usize) -> Self {
+        Self::scaled(VectorField::zeros(width.div_ceil(factor), height.div_ceil(factor)), factor, width, height)
+    }
+
+    pub fn width(&self) -> usize {
+        self.width
+    }
+
+    pub fn height(&self) -> usize {
+        self.height
+    }
+
+    pub fn factor(&self) -> usize {
+        self.factor
+    }
+
+    /// The prior as measured, one vector per block (in pixels of the shrunk frame); at factor 1
+    /// the full-size field, with the pixels set since.
+    pub fn coarse(&self) -> &VectorField {
+        &self.coarse
+    }
+
+    /// The row-major indices of the full-size pixels set since, in no particular order (none at
+    /// factor 1, where they are part of [`ScaledPrior::coarse`]).
+    pub fn set_pixels(&self) -> impl Iterator<Item = usize> + '_ {
+        self.set.keys().copied()
+    }
+
+    /// The full-size vector of pixel `(u, v)`.
+    pub fn at(&self, u: usize, v: usize) -> [f32; 2] {
+        let s = self.factor;
+        match self.set.get(&(v * self.width + u)) {
+            Some(&vector) => vector,
+            None => self.coarse.get(u / s, v / s).map(|x| x * s as f32),
+        }
+    }
+
+    /// Sets the full-size pixel of row-major index `i` to `vector`.
+    pub fn set(&mut self, i: usize, vector: [f32; 2]) {
+        assert!(i < self.width * self.height, "pixel {i} outside the {}x{} prior", self.width, self.height);
+        if self.factor == 1 {
+            self.coarse.pixels_mut()[i] = vector;
+        } else {
+            self.set.insert(i, vector);
+        }
+    }
+
+    /// The prior as a full-size field.
+    pub fn to_full(&self) -> VectorField {
+        if self.factor == 1 {
+            return self.coarse.clone();
+        }
+        let w = self.width;
+        let mut pixels = vec![[0f32; 2]; w * self.height];
+        pixels.par_chunks_mut(w.max(1)).enumerate().for_each(|(v, row)| {
+            for (u, pixel) in row.iter_mut().enumerate() {
+                *pixel = self.at(u, v);
+            }
+        });
+        VectorField::from_pixels(w, self.height, pixels)
+    }
+}
 
 // ---------------------------------------------------------------------------------------------
 // Fictitious vectors (ALGORITHMS.md §6.2 step 2)
@@ -340,6 +448,27 @@ mod tests {
 
     fn assert_all_finite(field: &VectorField) {
         assert!(field.as_flat().iter().all(|x| x.is_finite()), "non-finite vector");
+    }
+
+    #[test]
+    fn a_scaled_prior_reads_as_its_blocks_times_the_factor_except_where_set() {
+        let (w, h) = (23usize, 14usize);
+        for s in [1, 2, 3, 4, 5] {
+            let coarse =
+                VectorField::from_fn(w.div_ceil(s), h.div_ceil(s), |u, v| [u as f32 + 0.5, -(v as f32) * 0.25]);
+            let mut prior = ScaledPrior::scaled(coarse.clone(), s, w, h);
+            prior.set(3 * w + 4, [7.0, -7.0]);
+            let full = prior.to_full();
+            assert_eq!((full.width(), full.height()), (w, h));
+            for (i, &vector) in full.pixels().iter().enumerate() {
+                let (u, v) = (i % w, i / w);
+                let [x, y] = coarse.get(u / s, v / s);
+                let expected = if i == 3 * w + 4 { [7.0, -7.0] } else { [x * s as f32, y * s as f32] };
+                assert_eq!((vector, prior.at(u, v)), (expected, expected), "factor {s}, pixel {i}");
+            }
+            assert_eq!(prior.set_pixels().count(), usize::from(s > 1));
+        }
+        assert_eq!(ScaledPrior::zeros(5, 3, 2).to_full(), VectorField::zeros(5, 3));
     }
 
     #[test]

@@ -11,6 +11,7 @@ use ivp_core::inference::{infill_frame, FrameInputs};
 use ivp_core::infill::fill_disocclusions_background;
 use ivp_core::metrics::score_frame;
 use ivp_core::nn::model::IvpNet;
+use ivp_core::prior::ScaledPrior;
 use ivp_core::{HoleMask, PixelClass, RgbImage};
 use ivp_data::samples::{ClipSource, Sample, SampleConfig, SampleGenerator, Split};
 use rayon::prelude::*;
@@ -75,11 +76,12 @@ impl ValidationSet {
     pub fn score_network(&self, net: &IvpNet, iterations: usize, group: &dyn ProcessGroup) -> Result<ValidationScores> {
         self.score(group, |i| {
             let (s, holes) = (&self.samples[i], &self.holes[i]);
+            let prior = ScaledPrior::full_size(s.prior.clone());
             let inputs = FrameInputs {
                 warped: &s.warped,
                 warped_depth: &s.warped_depth,
                 holes,
-                prior: &s.prior,
+                prior: &prior,
                 last: Some(&s.last),
                 last_warped: Some(&s.last_warped),
             };

@@ -22,7 +22,7 @@ use crate::infill::rules::fill_new_regions;
 use crate::infill::{InfillContext, InfillError, Infilled, Infiller};
 use crate::nn::model::{IvpNet, NetInput, Variant};
 use crate::nn::tensor::{from_tensor, to_tensor};
-use crate::prior::warp_to_last;
+use crate::prior::{warp_to_last, ScaledPrior};
 
 /// One frame's inputs to a network at test time.
 #[derive(Clone, Copy, Debug)]
@@ -32,8 +32,8 @@ pub struct FrameInputs<'a> {
     /// `d^w_{n+1}`, 0 in holes.
     pub warped_depth: &'a DepthMap,
     pub holes: &'a HoleMask,
-    /// The temporal prior (zeros when there is none).
-    pub prior: &'a VectorField,
+    /// The temporal prior (zeros when there is none), at the scale it was measured on.
+    pub prior: &'a ScaledPrior,
     /// `f_n` and `f^w_n`: read by the intensity variant only (zeros when absent).
     pub last: Option<&'a RgbImage>,
     pub last_warped: Option<&'a RgbImage>,
@@ -113,7 +113,8 @@ fn predict_intensity(net: &IvpNet, inputs: &FrameInputs<'_>) -> candle_core::Res
     let disocclusions: Vec<f32> =
         inputs.holes.classes().iter().map(|c| f32::from(u8::from(*c == PixelClass::Disocclusion))).collect();
     let mask = Tensor::from_vec(disocclusions, (1, 1, h, w), &Device::Cpu)?;
-    let (warped, depth, prior) = (to_tensor(inputs.warped)?, to_tensor(inputs.warped_depth)?, to_tensor(inputs.prior)?);
+    let (warped, depth, prior) =
+        (to_tensor(inputs.warped)?, to_tensor(inputs.warped_depth)?, to_tensor(&inputs.prior.to_full())?);
     let last = to_tensor(inputs.last.unwrap_or(&zeros))?;
     let last_warped = to_tensor(inputs.last_warped.unwrap_or(&zeros))?;
     let input = NetInput {
@@ -187,7 +188,7 @@ impl ModelInfiller {
             }
             Variant::NoTemporalPrior => (None, None),
         };
-        let prior = prior.unwrap_or_else(|| VectorField::zeros(w, h));
+        let prior = prior.unwrap_or_else(|| ScaledPrior::zeros(w, h, factor));
         let prior_time = started.elapsed();
         let inputs = FrameInputs {
             warped: &warped.image,
@@ -255,7 +256,7 @@ mod tests {
             warped: &warped,
             warped_depth: &depth,
             holes: &holes,
-            prior: &prior,
+            prior: &ScaledPrior::full_size(prior),
             last: None,
             last_warped: None,
         };
@@ -275,7 +276,7 @@ mod tests {
     fn extreme_depths_and_all_hole_frames_give_finite_images() {
         let (net, _) = IvpNet::seeded(ModelConfig::new(Variant::Full, 0.125), 2).unwrap();
         let (w, h) = (19, 13);
-        let prior = VectorField::zeros(w, h);
+        let prior = ScaledPrior::zeros(w, h, 1);
         for (label, depth_value, hole_every) in [
             ("huge depth", 1e30f32, 3),
             ("infinite depth", f32::INFINITY, 3),

@@ -18,6 +18,7 @@ use crate::nn::model::{IvpNet, NetInput};
 use crate::nn::ops::at_points::Pixel;
 use crate::nn::ops::profile;
 use crate::nn::tensor::to_batch_tensor;
+use crate::prior::ScaledPrior;
 
 /// Tiles of one size per network call: bounds the memory of a batch (about 40 MB of feature maps
 /// per 128x128 tile at width 1).
@@ -154,14 +155,14 @@ fn points_to_predict(frame: &NetworkFrame<'_>, batch: &[&Tile]) -> Vec<Pixel> {
 impl VectorPredictor for NetworkPredictor<'_> {
     fn predict(&self, prior: &VectorField, depth: &DepthMap, holes: &[bool]) -> Result<VectorField, InfillError> {
         let mut vectors = VectorField::zeros(depth.width(), depth.height());
-        self.predict_into(prior, depth, holes, &mut vectors)?;
+        self.predict_into(&ScaledPrior::full_size(prior.clone()), depth, holes, &mut vectors)?;
         Ok(vectors)
     }
 
     /// Writes the vectors of every pixel of `holes` (each lies in a tile's core) and nothing else.
     fn predict_into(
         &self,
-        prior: &VectorField,
+        prior: &ScaledPrior,
         depth: &DepthMap,
         holes: &[bool],
         vectors: &mut VectorField,
@@ -169,7 +170,8 @@ impl VectorPredictor for NetworkPredictor<'_> {
         if !self.net.config().variant.predicts_vectors() {
             return Err(InfillError::Other("the intensity variant predicts colours, not vectors".into()));
         }
-        if !prior.same_size(depth) || holes.len() != depth.len() || !vectors.same_size(depth) {
+        let full_size = (prior.width(), prior.height()) == (depth.width(), depth.height());
+        if !full_size || holes.len() != depth.len() || !vectors.same_size(depth) {
             return Err(InfillError::Other(
                 "the prior, depth, holes and vectors given to the network differ in size".into(),
             ));
@@ -336,6 +338,7 @@ mod tests {
             let predictor = NetworkPredictor::new(&net, coverage, factor);
             let fresh = predictor.predict(&prior, &depth, &holes).unwrap();
             let mut used = VectorField::from_fn(w, h, stale);
+            let prior = ScaledPrior::full_size(prior.clone());
             predictor.predict_into(&prior, &depth, &holes, &mut used).unwrap();
             for (i, (got, want)) in used.pixels().iter().zip(fresh.pixels()).enumerate() {
                 let expected = if holes[i] { *want } else { stale(i % w, i / w) };

@@ -17,7 +17,7 @@ use crate::geometry::{
     relative_pose, warp_known, within_reach, DepthMap, FrameView, Image, Intrinsics, Rect, RgbImage, VectorField,
 };
 use crate::infill::InfillContext;
-use crate::prior::{prior_from_last, GROUND_TRUTH_REACH};
+use crate::prior::{prior_from_last, ScaledPrior, GROUND_TRUTH_REACH};
 
 /// `$body` with `$S` a constant equal to the block size `$s` when it is 2, 3 or 4 (the common
 /// factors), else 0, for which the `_by` functions below read `s` itself. With the size known at
@@ -112,12 +112,18 @@ impl std::fmt::Display for Scale {
 /// Shrinking, for each block:
 /// - a hole if any of its pixels is one (so every hole pixel has a coarse prediction);
 /// - depth: as [`shrink_depth`] says (0 for a hole block, as the network expects);
-/// - prior: the mean of its non-zero vectors divided by `factor` (0 for a hole block).
+/// - prior: the mean of its non-zero full-size vectors divided by `factor` (0 for a hole block).
+///   A prior kept at this factor already holds that for every block where nothing was set since
+///   (see [`ScaledPrior`]), so only the blocks where the infilling set pixels are shrunk.
 ///
 /// Growing ([`NetworkFrame::write_vectors`]): each hole pixel takes `factor` times the vector of
 /// its block. At factor 1 windows are plain crops.
 pub struct NetworkFrame<'a> {
-    prior: &'a VectorField,
+    prior: &'a ScaledPrior,
+    /// The full-size prior, for a prior kept at another factor than this frame's.
+    full_prior: Option<Cow<'a, VectorField>>,
+    /// The blocks (row-major indices at the network's resolution) holding pixels set in `prior`.
+    blocks_set: Vec<usize>,
     depth: &'a DepthMap,
     holes: &'a [bool],
     factor: usize,
@@ -129,12 +135,22 @@ pub struct NetworkFrame<'a> {
 
 impl<'a> NetworkFrame<'a> {
     /// `holes` is row-major, `true` = a pixel to predict; all three are of one size.
-    pub fn new(prior: &'a VectorField, depth: &'a DepthMap, holes: &'a [bool], factor: usize) -> Self {
+    pub fn new(prior: &'a ScaledPrior, depth: &'a DepthMap, holes: &'a [bool], factor: usize) -> Self {
         let s = factor.max(1);
         let (w, h) = (depth.width(), depth.height());
-        assert!(prior.same_size(depth) && holes.len() == w * h, "the prior, depth and holes differ in size");
+        let full_size = (prior.width(), prior.height()) == (w, h);
+        assert!(full_size && holes.len() == w * h, "the prior, depth and holes differ in size");
         let network_holes = if s == 1 { Cow::Borrowed(holes) } else { Cow::Owned(blocks_with(w, h, s, holes, true)) };
-        Self { prior, depth, holes, factor: s, network_holes, width: w.div_ceil(s), height: h.div_ceil(s) }
+        let full_prior = match prior.factor() {
+            f if f == s => None,
+            1 => Some(Cow::Borrowed(prior.coarse())),
+            _ => Some(Cow::Owned(prior.to_full())),
+        };
+        let (width, height) = (w.div_ceil(s), h.div_ceil(s));
+        let mut blocks_set: Vec<usize> = prior.set_pixels().map(|i| (i / w / s) * width + i % w / s).collect();
+        blocks_set.sort_unstable();
+        blocks_set.dedup();
+        Self { prior, full_prior, blocks_set, depth, holes, factor: s, network_holes, width, height }
     }
 
     /// The frame the network sees, in its pixels.
@@ -150,11 +166,11 @@ impl<'a> NetworkFrame<'a> {
     /// The prior and the depth the network reads in `window` (its pixels).
     pub fn window(&self, window: Rect) -> (VectorField, DepthMap) {
         let (s, r) = (self.factor, window);
+        let mut prior = self.prior_in(window);
         if s == 1 {
-            return (self.prior.crop(r.x, r.y, r.width, r.height), self.depth.crop(r.x, r.y, r.width, r.height));
+            return (prior, self.depth.crop(r.x, r.y, r.width, r.height));
         }
         let mut depth = shrink_depth_in(self.depth, s, window);
-        let mut prior = shrink_vectors_in(self.prior, s, window);
         // The network saw no depth and no prior on holes in training.
         for v in 0..r.height {
             let holes = &self.network_holes[(r.y + v) * self.width + r.x..][..r.width];
@@ -164,6 +180,45 @@ impl<'a> NetworkFrame<'a> {
             }
         }
         (prior, depth)
+    }
+
+    /// The prior in `window`, before the holes are cleared.
+    fn prior_in(&self, r: Rect) -> VectorField {
+        let s = self.factor;
+        match &self.full_prior {
+            Some(full) if s == 1 => full.crop(r.x, r.y, r.width, r.height),
+            Some(full) => shrink_vectors_in(full, s, r),
+            None => {
+                let mut prior = self.prior.coarse().crop(r.x, r.y, r.width, r.height);
+                for &block in &self.blocks_set {
+                    let (cu, cv) = (block % self.width, block / self.width);
+                    if (r.x..r.x + r.width).contains(&cu) && (r.y..r.y + r.height).contains(&cv) {
+                        prior.set(cu - r.x, cv - r.y, self.shrunk_block_prior(cu, cv));
+                    }
+                }
+                prior
+            }
+        }
+    }
+
+    /// The full-size prior of block `(cu, cv)` shrunk as [`shrink_vectors_in`] does it (the same
+    /// sums in the same order).
+    fn shrunk_block_prior(&self, cu: usize, cv: usize) -> [f32; 2] {
+        let (s, w, h) = (self.factor, self.depth.width(), self.depth.height());
+        let (mut sums, mut n) = ([0f64; 2], 0u32);
+        for v in cv * s..((cv + 1) * s).min(h) {
+            for u in cu * s..((cu + 1) * s).min(w) {
+                let [x, y] = self.prior.at(u, v);
+                if x != 0.0 || y != 0.0 {
+                    (sums, n) = ([sums[0] + x as f64, sums[1] + y as f64], n + 1);
+                }
+            }
+        }
+        if n == 0 {
+            [0.0, 0.0]
+        } else {
+            sums.map(|x| (x / (n * s as u32) as f64) as f32)
+        }
     }
 
     /// The network's hole mask in `window`: 1 at the pixels to predict, else 0.
@@ -210,8 +265,8 @@ impl<'a> NetworkFrame<'a> {
 }
 
 /// The temporal prior of `ctx`'s target (ALGORITHMS.md §6.2) computed on the frames shrunk by
-/// `factor`, as a full-size field: each known pixel takes `factor` times the prior of its block,
-/// holes take 0. `None` without frame `n - 2`.
+/// `factor`, kept at that scale: as a full-size field, each pixel takes `factor` times the prior
+/// of its block, and blocks with a hole take 0. `None` without frame `n - 2`.
 ///
 /// Why: the prior's warps and searches cost as much as the rest of a 1080p frame together, while
 /// the network that reads it sees the frame shrunk anyway; measured on the shrunk frames, the
@@ -219,7 +274,7 @@ impl<'a> NetworkFrame<'a> {
 /// Only what the prior reads is shrunk: the depths of frames `n - 2` and `n` (warped whole), and
 /// the colours of frame `n` near the holes of the warp `n - 2 -> n` (the fictitious vectors'
 /// patches, [`GROUND_TRUTH_REACH`]); frame `n - 2`'s colours are not read at all.
-pub fn shrunk_temporal_prior(ctx: &InfillContext<'_>, factor: usize) -> Option<VectorField> {
+pub fn shrunk_temporal_prior(ctx: &InfillContext<'_>, factor: usize) -> Option<ScaledPrior> {
     let before_last = ctx.before_last.as_ref()?;
     let s = factor.max(1);
     let holes = &ctx.warped.holes;
@@ -244,40 +299,12 @@ pub fn shrunk_temporal_prior(ctx: &InfillContext<'_>, factor: usize) -> Option<V
     };
     let view_n = FrameView { image: &image_n, depth: &depth_n, pose: ctx.last.pose };
     if s == 1 {
-        return Some(prior_from_last(&known_n, &view_n, ctx.target_pose, &k, &known));
+        return Some(ScaledPrior::full_size(prior_from_last(&known_n, &view_n, ctx.target_pose, &k, &known)));
     }
     // A block is known when all its pixels are (as in NetworkFrame, where any hole makes a hole).
     let coarse_known: Vec<bool> = blocks_with(w, h, s, &known, false).into_iter().map(|hole| !hole).collect();
     let coarse = prior_from_last(&known_n, &view_n, ctx.target_pose, &k, &coarse_known);
-    Some(grow_vectors(&coarse, s, w, h, &known))
-}
-
-/// A `w x h` field in which each pixel marked in `at` takes `s` times the vector of its block of
-/// `coarse` (vectors are in pixels, so they grow with the frame); the others are 0.
-fn grow_vectors(coarse: &VectorField, s: usize, w: usize, h: usize, at: &[bool]) -> VectorField {
-    with_block_size!(s, S => grow_vectors_by::<S>(coarse, s, w, h, at))
-}
-
-/// [`grow_vectors`] for blocks of [`block_size`]`::<S>(s)`.
-fn grow_vectors_by<const S: usize>(coarse: &VectorField, s: usize, w: usize, h: usize, at: &[bool]) -> VectorField {
-    let grown = s as f32;
-    assert!(h == 0 || (coarse.width() == w.div_ceil(s) && coarse.height() == h.div_ceil(s)), "coarse field size");
-    // Every pixel written once, without zeroing the field first (16 MB at 1080p).
-    let mut pixels: Vec<[f32; 2]> = Vec::with_capacity(w * h);
-    pixels.spare_capacity_mut()[..w * h].par_chunks_mut(w.max(1)).enumerate().for_each(|(v, row)| {
-        let s = block_size::<S>(s);
-        let marks = row.chunks_mut(s).zip(at[v * w..(v + 1) * w].chunks(s));
-        for ((out, at), &[x, y]) in marks.zip(coarse.row(v / s)) {
-            for (out, &at) in out.iter_mut().zip(at) {
-                out.write(if at { [x * grown, y * grown] } else { [0.0, 0.0] });
-            }
-        }
-    });
-    // SAFETY: the rows cover the `w h` pixels, and each row's blocks (with one coarse vector each:
-    // the coarse row has `w / s` rounded up of them, checked above) cover the row, every pixel of
-    // which was written.
-    unsafe { pixels.set_len(w * h) };
-    VectorField::from_pixels(w, h, pixels)
+    Some(ScaledPrior::scaled(coarse, s, w, h))
 }
 
 /// The intrinsics of a frame shrunk by blocks of `s`: pixel centres at integers, so block `c`
@@ -496,6 +523,7 @@ mod tests {
         let holes: Vec<bool> = (0..w * h).map(|i| hole(i % w, i / w)).collect();
         let depth = DepthMap::from_fn(w, h, |u, v| [if hole(u, v) { 0.0 } else { 1.0 + u as f32 }]);
         let prior = VectorField::from_fn(w, h, |u, _| if u == 0 { [4.0, -2.0] } else { [0.0; 2] });
+        let prior = ScaledPrior::full_size(prior);
         let frame = NetworkFrame::new(&prior, &depth, &holes, 2);
         assert_eq!(frame.whole(), Rect::whole(3, 2));
         assert_eq!(frame.holes(), [false, true, false, false, false, false]);
@@ -536,6 +564,7 @@ mod tests {
                 h,
                 |u, v| if (u + v) % 3 == 0 { [0.0; 2] } else { [u as f32 - 9.0, 2.0 - v as f32] },
             );
+        let prior = ScaledPrior::full_size(prior);
         for s in [1, 2, 3, 5] {
             let frame = NetworkFrame::new(&prior, &depth, &holes, s);
             let whole = frame.whole();
@@ -556,15 +585,55 @@ mod tests {
         }
     }
 
+    /// A prior kept at the network's factor is read without growing it: every window, with
+    /// pixels set in some blocks, must be what the same prior at full size gives: to the bit at
+    /// factors that are powers of 2 (growing and shrinking by them is exact), else within
+    /// rounding (the kept value is the one measured; the grown one was rounded once more).
+    #[test]
+    fn a_prior_kept_at_the_factor_reads_as_its_full_size_form() {
+        let (w, h) = (41, 29);
+        let holes: Vec<bool> = (0..w * h).map(|i| (i * 7919) % 23 == 0).collect();
+        let depth = DepthMap::from_fn(w, h, |u, v| [if holes[v * w + u] { 0.0 } else { 1.0 + (u % 5) as f32 }]);
+        for s in [2, 3, 4, 5] {
+            let coarse = VectorField::from_fn(w.div_ceil(s), h.div_ceil(s), |u, v| match (u + 2 * v) % 4 {
+                0 => [0.0, 0.0],
+                1 => [0.0, 1.25],
+                _ => [u as f32 * 0.7 - 3.0, 1.5 - v as f32 * 0.3],
+            });
+            let mut scaled = ScaledPrior::scaled(coarse, s, w, h);
+            // Pixels set in a few blocks (as the infilling sets the pixels it fills), one of them
+            // back to zero.
+            for (i, vector) in
+                [(0, [2.5, -1.0]), (w + 1, [0.0, 0.0]), (5 * w + 7, [-4.0, 3.0]), (w * h - 1, [1.0, 1.0])]
+            {
+                scaled.set(i, vector);
+            }
+            let full = ScaledPrior::full_size(scaled.to_full());
+            let (kept, grown) =
+                (NetworkFrame::new(&scaled, &depth, &holes, s), NetworkFrame::new(&full, &depth, &holes, s));
+            let whole = kept.whole();
+            for r in [whole, Rect { x: 1, y: 2, width: 3, height: 4 }, Rect { x: 0, y: 0, width: 2, height: 2 }] {
+                let (kept, grown) = (kept.window(r).0, grown.window(r).0);
+                if s.is_power_of_two() {
+                    assert_eq!(kept, grown, "factor {s}, {r:?}");
+                }
+                let close = |a: f32, b: f32| (a - b).abs() <= 1e-6 * a.abs().max(1.0);
+                let pairs = kept.pixels().iter().flatten().zip(grown.pixels().iter().flatten());
+                assert!(pairs.into_iter().all(|(&a, &b)| close(a, b)), "factor {s}, {r:?}");
+            }
+        }
+    }
+
     #[test]
     fn factor_one_reads_the_frame_as_it_is() {
         let (w, h) = (4, 4);
         let holes: Vec<bool> = (0..w * h).map(|i| i == 5).collect();
         let depth = DepthMap::from_fn(w, h, |u, v| [1.0 + (u + v) as f32]);
         let prior = VectorField::from_fn(w, h, |u, v| [u as f32, v as f32]);
-        let frame = NetworkFrame::new(&prior, &depth, &holes, 1);
+        let scaled = ScaledPrior::full_size(prior.clone());
+        let frame = NetworkFrame::new(&scaled, &depth, &holes, 1);
         assert_eq!(frame.holes(), &holes[..]);
-        assert_eq!(frame.window(frame.whole()), (prior.clone(), depth.clone()));
+        assert_eq!(frame.window(frame.whole()), (prior, depth.clone()));
         let mut vectors = VectorField::zeros(w, h);
         frame.write_vectors(
             Rect { x: 1, y: 1, width: 2, height: 2 },
@@ -626,9 +695,9 @@ mod tests {
             warped: &warped,
             ground_truth: None,
         };
-        assert_eq!(shrunk_temporal_prior(&ctx, 1), ctx.temporal_prior().map(|p| p.prior));
+        assert_eq!(shrunk_temporal_prior(&ctx, 1).map(|p| p.to_full()), ctx.temporal_prior().map(|p| p.prior));
         let fine = ctx.temporal_prior().unwrap().prior;
-        let shrunk = shrunk_temporal_prior(&ctx, 2).unwrap();
+        let shrunk = shrunk_temporal_prior(&ctx, 2).unwrap().to_full();
         let known = warped.holes.known();
         let mean_x = |field: &VectorField| {
             let xs: Vec<f32> = field.pixels().iter().filter(|p| p[0] != 0.0).map(|p| p[0]).collect();
@@ -679,22 +748,6 @@ mod tests {
                 shrunk.crop(window.x, window.y, window.width, window.height),
                 "factor {s}"
             );
-        }
-    }
-
-    #[test]
-    fn grown_vectors_take_their_block_times_the_factor_at_marked_pixels_only() {
-        let (w, h) = (23usize, 14usize);
-        let at: Vec<bool> = (0..w * h).map(|i| (i * 5 + i / 7) % 3 != 0).collect();
-        for s in [1, 2, 3, 4, 5] {
-            let coarse =
-                VectorField::from_fn(w.div_ceil(s), h.div_ceil(s), |u, v| [u as f32 + 0.5, -(v as f32) * 0.25]);
-            let grown = grow_vectors(&coarse, s, w, h, &at);
-            for (i, &vector) in grown.pixels().iter().enumerate() {
-                let [x, y] = coarse.get(i % w / s, i / w / s);
-                let expected = if at[i] { [x * s as f32, y * s as f32] } else { [0.0, 0.0] };
-                assert_eq!(vector, expected, "factor {s}, pixel {i}");
-            }
         }
     }
 }

@@ -20,7 +20,7 @@ use rayon::prelude::*;
 use crate::geometry::{DepthMap, HoleMask, KnownRead, NearestKnown, Pixel, PixelClass, RgbImage, VectorField};
 use crate::infill::rules::{background_source, fill_new_regions_with};
 use crate::infill::InfillError;
-use crate::prior::background_depth_thresholds_at;
+use crate::prior::{background_depth_thresholds_at, ScaledPrior};
 
 /// P of ALGORITHMS.md §6.5: two iterations that keep background vectors only, then the last.
 pub const DEFAULT_ITERATIONS: usize = 3;
@@ -50,18 +50,21 @@ pub trait VectorPredictor: Send + Sync {
     /// `depth`. Values outside `holes` are ignored (they should be zero).
     fn predict(&self, prior: &VectorField, depth: &DepthMap, holes: &[bool]) -> Result<VectorField, InfillError>;
 
-    /// [`VectorPredictor::predict`] into `out` (of the size of `depth`): the vectors at the pixels
-    /// of `holes`; `out` may keep whatever it held elsewhere. The iterative infilling passes one
+    /// [`VectorPredictor::predict`] as the iterative infilling calls it: with the prior at the
+    /// scale it was measured on, and into `out` (of the size of `depth`), writing the vectors at
+    /// the pixels of `holes`; `out` may keep whatever it held elsewhere. The infilling passes one
     /// field to every iteration, so that a predictor that writes the holes only allocates and
-    /// clears no frame-sized field per call. By default, `predict`'s field replaces `out`.
+    /// clears no frame-sized field per call, and a predictor that reads the prior at its scale
+    /// (the network) never sees it at full size. By default, `predict` of the full-size prior
+    /// replaces `out`.
     fn predict_into(
         &self,
-        prior: &VectorField,
+        prior: &ScaledPrior,
         depth: &DepthMap,
         holes: &[bool],
         out: &mut VectorField,
     ) -> Result<(), InfillError> {
-        *out = self.predict(prior, depth, holes)?;
+        *out = self.predict(&prior.to_full(), depth, holes)?;
         Ok(())
     }
 }
@@ -76,7 +79,7 @@ macro_rules! forward_vector_predictor {
 
             fn predict_into(
                 &self,
-                prior: &VectorField,
+                prior: &ScaledPrior,
                 depth: &DepthMap,
                 holes: &[bool],
                 out: &mut VectorField,
@@ -192,7 +195,7 @@ pub fn infill_iteratively(
     warped: &RgbImage,
     warped_depth: &DepthMap,
     holes: &HoleMask,
-    prior: &VectorField,
+    prior: &ScaledPrior,
     iterations: usize,
 ) -> Result<IterativeInfill, InfillError> {
     let start = Instant::now();
@@ -206,7 +209,7 @@ pub fn infill_iteratively(
     if holes.width() != w || holes.height() != h {
         return Err(size_error("the hole mask", holes.width(), holes.height(), w, h));
     }
-    if !prior.same_size(warped) {
+    if (prior.width(), prior.height()) != (w, h) {
         return Err(size_error("the prior", prior.width(), prior.height(), w, h));
     }
 
@@ -297,7 +300,7 @@ pub fn infill_iteratively(
                         out.walked += usize::from(walked);
                         depth_map.pixels_mut()[i] = [depth];
                         sources[i] = source;
-                        prior.pixels_mut()[i] = vector;
+                        prior.set(i, vector);
                     }
                     Outcome::Fill => {
                         // The source `fill` copied, else the pixel itself (a composed vector of 0).
@@ -356,7 +359,7 @@ struct Working {
     depth: DepthMap,
     known: Vec<bool>,
     sources: Vec<[f32; 2]>,
-    prior: VectorField,
+    prior: ScaledPrior,
     /// The disocclusion pixels still to fill.
     to_fill: Vec<bool>,
     /// The predictor's vectors, read at the pixels still to fill.
@@ -364,7 +367,7 @@ struct Working {
 }
 
 impl Working {
-    fn new(warped_depth: &DepthMap, prior: &VectorField, original_known: &[bool], remaining: &[usize]) -> Self {
+    fn new(warped_depth: &DepthMap, prior: &ScaledPrior, original_known: &[bool], remaining: &[usize]) -> Self {
         let n = original_known.len();
         let depth_where_known = || {
             let depths = warped_depth.pixels().iter().zip(original_known);
@@ -509,7 +512,8 @@ mod tests {
     }
 
     fn run(predictor: &dyn VectorPredictor, warp: &Warp, prior: &VectorField, iterations: usize) -> IterativeInfill {
-        infill_iteratively(predictor, &warp.image, &warp.depth, &warp.holes, prior, iterations).unwrap()
+        let prior = ScaledPrior::full_size(prior.clone());
+        infill_iteratively(predictor, &warp.image, &warp.depth, &warp.holes, &prior, iterations).unwrap()
     }
 
     fn zero_prior(warp: &Warp) -> VectorField {
@@ -921,11 +925,11 @@ mod tests {
     #[test]
     fn bad_inputs_are_errors() {
         let warp = row_scene();
-        let prior = zero_prior(&warp);
+        let prior = ScaledPrior::full_size(zero_prior(&warp));
         let ok = constant([1.0, 0.0]);
         let err = |result: Result<IterativeInfill, InfillError>| matches!(result, Err(InfillError::Other(_)));
         assert!(err(infill_iteratively(&ok, &warp.image, &warp.depth, &warp.holes, &prior, 0)));
-        assert!(err(infill_iteratively(&ok, &warp.image, &warp.depth, &warp.holes, &VectorField::zeros(3, 3), 3)));
+        assert!(err(infill_iteratively(&ok, &warp.image, &warp.depth, &warp.holes, &ScaledPrior::zeros(3, 3, 1), 3)));
         assert!(err(infill_iteratively(&ok, &warp.image, &DepthMap::zeros(8, 4), &warp.holes, &prior, 3)));
         let wrong_size = FnPredictor(|_: &VectorField, _: &DepthMap, _: &[bool]| VectorField::zeros(2, 2));
         assert!(err(infill_iteratively(&wrong_size, &warp.image, &warp.depth, &warp.holes, &prior, 3)));

@@ -430,7 +430,7 @@ fn sum(v: &[f32]) -> f32 {
 /// Forward: `out[b, co, p] = bias[co] + sum_r w[co, r] im2col(x[b])[r, p]`, on im2col tiles, or by
 /// the direct kernels of [`narrow`] for stride 1 with few outputs.
 fn forward(g: &Geom, x: &[f32], w: &[f32], bias: Option<&[f32]>, tile_bytes: usize) -> Vec<f32> {
-    if narrow::applies(g) {
+    if narrow::applies_forward(g) {
         narrow::forward(g, x, w, bias)
     } else {
         tiled_forward(g, x, w, bias, tile_bytes)
@@ -1066,6 +1066,24 @@ mod tests {
             for (arg, v) in [&x, &wt, &b].into_iter().enumerate() {
                 let err = rel_err(&got[arg], g.get(v).unwrap());
                 assert!(err < 1e-4, "k{k} cout {cout} {h}x{w}: gradient of argument {arg}: {err}");
+            }
+        }
+    }
+
+    #[test]
+    fn the_narrow_kernel_of_four_outputs_matches_candle_forward() {
+        // The phases of a one-output 7x7 layer of an upsampled map: four outputs, 5x5.
+        for (batch, cin, h, w) in [(2, 16, 37, 70), (1, 3, 6, 5)] {
+            let g = Geom::new((batch, cin, h, w), 4, 5, 1, 2);
+            assert!(narrow::applies_forward(&g) && !narrow::applies(&g));
+            let x = random(&[batch, cin, h, w], 7);
+            let wt = random(&[4, cin, 5, 5], 8);
+            let b = random(&[4], 9);
+            // Padded as a layer, and unpadded as the phases of `conv2d_of_upsampled`.
+            for pad in [2, 0] {
+                let want = candle_conv(&x, &wt, &b, 1, pad);
+                let ours = conv2d(&x, &wt, Some(&b), 1, pad).unwrap();
+                assert!(rel_err(&ours, &want) < 1e-4, "{h}x{w} padding {pad}");
             }
         }
     }

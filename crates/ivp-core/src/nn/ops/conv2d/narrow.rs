@@ -1,5 +1,7 @@
 //! Direct kernels for stride-1 convolutions with one or two output channels: the last layer of the
-//! U-Net (2 outputs, the vectors) and of the depth head (1 output).
+//! U-Net (2 outputs, the vectors) and of the depth head (1 output); and, forward only, four
+//! outputs of a 5x5 kernel: the phases of the depth head's last layer at inference
+//! (`conv2d_of_upsampled`).
 //!
 //! Through im2col these are matrix-vector products: every value of the k x k times larger im2col
 //! matrix is written once and used for only one or two multiply-adds, so they ran at 5-15 GFLOP/s
@@ -26,10 +28,16 @@ const BAND_ROWS: usize = 16;
 /// independent sums in both cases, enough to hide the latency of the multiply-adds.
 const BLOCKS_1: usize = 8;
 const BLOCKS_2: usize = 4;
+const BLOCKS_4: usize = 2;
 
 /// True when [`forward`] and [`weight_grad`] apply to this shape.
 pub(super) fn applies(g: &Geom) -> bool {
     g.stride == 1 && (1..=2).contains(&g.cout) && matches!(g.k, 3 | 5 | 7)
+}
+
+/// True when [`forward`] applies to this shape.
+pub(super) fn applies_forward(g: &Geom) -> bool {
+    applies(g) || (g.stride == 1 && g.cout == 4 && g.k == 5)
 }
 
 /// The output row length rounded up to whole blocks of the forward pass (`BLOCKS_1 LANES` pixels
@@ -66,6 +74,7 @@ pub(super) fn forward(g: &Geom, x: &[f32], w: &[f32], bias: Option<&[f32]>) -> V
         (2, 3) => forward_n::<2, 3, BLOCKS_2>(g, x, w, bias),
         (2, 5) => forward_n::<2, 5, BLOCKS_2>(g, x, w, bias),
         (2, 7) => forward_n::<2, 7, BLOCKS_2>(g, x, w, bias),
+        (4, 5) => forward_n::<4, 5, BLOCKS_4>(g, x, w, bias),
         shape => unreachable!("no narrow kernel for (outputs, kernel) {shape:?}"),
     }
 }
