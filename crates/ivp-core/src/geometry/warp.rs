@@ -17,6 +17,7 @@
 
 use std::mem::MaybeUninit;
 use std::ops::Range;
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Mutex;
 
 use glam::DMat4;
@@ -74,10 +75,33 @@ pub fn warp_forward(image: &RgbImage, depth: &DepthMap, k: &Intrinsics, transfor
     Warp { image: splat.values, depth: splat.depth, holes }
 }
 
-/// The known mask of [`warp_forward`] (where any source point lands) without moving any values:
-/// all that the temporal prior needs of the warp `n - 2 -> n`.
+/// The known mask of [`warp_forward`] without moving any values: all that the temporal prior
+/// needs of the warp `n - 2 -> n`.
+///
+/// A pixel is known when any splat reaches it: every splat made weighs more than nothing (a
+/// bilinear weight of at least [`MIN_BILINEAR_WEIGHT`] times a depth weight of at least
+/// `e^-DEPTH_WEIGHT_RANGE`), so no depth weight, largest depth, band or accumulator is needed:
+/// the points are placed as [`warp_forward`] places them and their target pixels marked.
 pub fn warp_known(depth: &DepthMap, k: &Intrinsics, transform: &DMat4) -> Vec<bool> {
-    splat::<0>(depth, k, transform, None, |_| []).known
+    let (w, h) = (depth.width(), depth.height());
+    if w * h == 0 {
+        return Vec::new();
+    }
+    assert!(w < i32::MAX as usize && h < i32::MAX as usize, "a {w}x{h} frame is too large to warp");
+    let proj = Projector::new(w, h, k, transform);
+    let whole = 0..h;
+    // A mark per target pixel, then the sinks of the splats not made. Threads mark pixels of
+    // other threads' rows: stores of `true`, in any order, give the same marks.
+    let marks: Vec<AtomicBool> = (0..w * h + SINKS).map(|_| AtomicBool::new(false)).collect();
+    depth.pixels().par_chunks(w).enumerate().for_each_init(ChunkSplats::new, |splats, (v, row)| {
+        for (c, depth) in row.chunks(CHUNK).enumerate() {
+            proj.place(v, c * CHUNK, depth, &whole, w * h, splats);
+            for targets in &splats.target {
+                targets[..depth.len()].iter().for_each(|&t| marks[t as usize].store(true, Ordering::Relaxed));
+            }
+        }
+    });
+    marks.into_iter().take(w * h).map(AtomicBool::into_inner).collect()
 }
 
 /// Moves any per-pixel field (e.g. infilling vectors) the way [`warp_forward`] moves colours.
@@ -205,8 +229,8 @@ impl Projector {
     }
 
     /// Pass 2, first half: the splats of the pixels `u0..` of row `v` that fall in the target
-    /// rows `band`, into `out`. A target pixel is an index in the band; a splat that is not made
-    /// goes to one of the [`SINKS`] cells from `sink` on.
+    /// rows `band`, into `out`, weighed by depth. A target pixel is an index in the band; a splat
+    /// that is not made goes to one of the [`SINKS`] cells from `sink` on.
     #[allow(clippy::too_many_arguments)]
     fn weigh(
         &self,
@@ -218,6 +242,19 @@ impl Projector {
         weight_of_depth: &DepthWeight,
         out: &mut ChunkSplats,
     ) {
+        self.place(v, u0, depth, band, sink, out);
+        let ChunkSplats { weight: [w00, w10, w01, w11], weight_z, .. } = out;
+        let n = depth.len();
+        let (w00, w10, w01, w11) = (&mut w00[..n], &mut w10[..n], &mut w01[..n], &mut w11[..n]);
+        for ((((w00, w10), w01), w11), &z) in w00.iter_mut().zip(w10).zip(w01).zip(w11).zip(&weight_z[..n]) {
+            let wd = weight_of_depth.at_clamped(z);
+            (*w00, *w10, *w01, *w11) = (*w00 * wd, *w10 * wd, *w01 * wd, *w11 * wd);
+        }
+    }
+
+    /// [`Projector::weigh`] before the depth weights: the target pixels and bilinear weights of
+    /// the splats, the depths in the target camera and the depths the weights are taken of.
+    fn place(&self, v: usize, u0: usize, depth: &[[f32; 1]], band: &Range<usize>, sink: usize, out: &mut ChunkSplats) {
         let n = depth.len();
         let row = self.row_term(v);
         let [cx, cy, cz] = self.col_terms(u0, n);
@@ -254,10 +291,6 @@ impl Projector {
             z[p] = q.z as f32;
             // Only landing points reach the fast ln and exp, which assume a depth of at least 0.
             weight_z[p] = select(q.lands, min(q.z, MAX_WEIGHT_DEPTH), 0.0) as f32;
-        }
-        for ((((w00, w10), w01), w11), &z) in w00.iter_mut().zip(w10).zip(w01).zip(w11).zip(&*weight_z) {
-            let wd = weight_of_depth.at_clamped(z);
-            (*w00, *w10, *w01, *w11) = (*w00 * wd, *w10 * wd, *w01 * wd, *w11 * wd);
         }
     }
 }

@@ -401,6 +401,9 @@ fn blocks_with_by<const S: usize>(w: usize, h: usize, s: usize, mask: &[bool], v
     out
 }
 
+/// Blocks per parallel task of [`shrink_blocks`], at least.
+const BLOCKS_PER_TASK: usize = 4096;
+
 /// What [`shrink_blocks`] makes of a block: `finish` of the sums (in f64, in the order of the
 /// pixels) of the pixels that `take` takes, how many it took, and whether `flag` holds for any of
 /// its pixels.
@@ -447,15 +450,20 @@ where
     assert!(at.is_none_or(|at| at.len() == r.area()), "block mask does not match the window");
     let columns = r.x * s..((r.x + r.width) * s).min(w);
     let mut out = Image::zeros(r.width, r.height);
-    out.pixels_mut().par_chunks_mut(r.width.max(1)).enumerate().for_each(|(row, cells)| {
+    // Rows of blocks in tasks of a few thousand blocks: a tile's rows are short, and a task per
+    // row cost as much as its work.
+    let rows_per_task = (BLOCKS_PER_TASK / r.width.max(1)).max(1);
+    let rows = out.pixels_mut().par_chunks_mut(r.width.max(1)).enumerate().with_min_len(rows_per_task);
+    let buffers = || (vec![[0f64; C]; r.width], vec![0u32; r.width], vec![false; r.width]);
+    rows.for_each_init(buffers, |(sums, counts, flagged), (row, cells)| {
         let s = block_size::<S>(s);
         let marks = at.map(|at| &at[row * r.width..][..r.width]);
         if marks.is_some_and(|m| !m.contains(&true)) {
             return;
         }
-        let mut sums = vec![[0f64; C]; r.width];
-        let mut counts = vec![0u32; r.width];
-        let mut flagged = vec![false; r.width];
+        sums.fill([0.0; C]);
+        counts.fill(0);
+        flagged.fill(false);
         let add = |p: [f32; C], sum: &mut [f64; C], count: &mut u32, flagged: &mut bool| {
             // Without a branch: adding 0 leaves a sum as it is.
             let taken = (rule.take)(p);
@@ -468,7 +476,7 @@ where
             match marks {
                 None => {
                     let mut blocks = pixels.chunks_exact(s);
-                    let all = sums.iter_mut().zip(&mut counts).zip(&mut flagged);
+                    let all = sums.iter_mut().zip(counts.iter_mut()).zip(flagged.iter_mut());
                     for (block, ((sum, count), flagged)) in (&mut blocks).zip(all) {
                         block.iter().for_each(|&p| add(p, sum, count, flagged));
                     }

@@ -51,12 +51,12 @@ pub trait VectorPredictor: Send + Sync {
     fn predict(&self, prior: &VectorField, depth: &DepthMap, holes: &[bool]) -> Result<VectorField, InfillError>;
 
     /// [`VectorPredictor::predict`] as the iterative infilling calls it: with the prior at the
-    /// scale it was measured on, and into `out` (of the size of `depth`), writing the vectors at
-    /// the pixels of `holes`; `out` may keep whatever it held elsewhere. The infilling passes one
-    /// field to every iteration, so that a predictor that writes the holes only allocates and
-    /// clears no frame-sized field per call, and a predictor that reads the prior at its scale
-    /// (the network) never sees it at full size. By default, `predict` of the full-size prior
-    /// replaces `out`.
+    /// scale it was measured on, writing the vectors at the pixels of `holes` into `out` (of the
+    /// size of `depth`) and nothing else. The infilling predicts into its output field, whose
+    /// other pixels hold the vectors of earlier iterations, so that no frame-sized field is
+    /// allocated or cleared per call; and a predictor that reads the prior at its scale (the
+    /// network) never sees it at full size. By default, `predict` of the full-size prior, copied
+    /// at the holes.
     fn predict_into(
         &self,
         prior: &ScaledPrior,
@@ -64,7 +64,18 @@ pub trait VectorPredictor: Send + Sync {
         holes: &[bool],
         out: &mut VectorField,
     ) -> Result<(), InfillError> {
-        *out = self.predict(&prior.to_full(), depth, holes)?;
+        let vectors = self.predict(&prior.to_full(), depth, holes)?;
+        if !vectors.same_size(out) {
+            return Err(size_error(
+                "the predicted vector field",
+                vectors.width(),
+                vectors.height(),
+                out.width(),
+                out.height(),
+            ));
+        }
+        let pixels = out.pixels_mut().iter_mut().zip(vectors.pixels()).zip(holes);
+        pixels.filter(|(_, &hole)| hole).for_each(|((out, vector), _)| *out = *vector);
         Ok(())
     }
 }
@@ -245,21 +256,18 @@ pub fn infill_iteratively(
         predict_time: Duration::ZERO,
         other_time: Duration::ZERO,
     };
-    if let Some(Working { depth: mut depth_map, mut known, mut sources, mut prior, mut to_fill, mut predicted }) =
-        working
-    {
+    if let Some(Working { depth: mut depth_map, mut known, mut sources, mut prior, mut to_fill }) = working {
         for (iteration, filled) in out.filled_per_iteration.iter_mut().enumerate() {
             if remaining.is_empty() {
                 break;
             }
             let last = iteration + 1 == iterations;
             let predict_start = Instant::now();
-            predictor.predict_into(&prior, &depth_map, &to_fill, &mut predicted)?;
+            // The vectors of the pixels still to fill land in the output field; the loop below
+            // overwrites each of them with the vector that filled it, if any.
+            predictor.predict_into(&prior, &depth_map, &to_fill, &mut out.vectors)?;
             out.predict_time += predict_start.elapsed();
             out.predictions += 1;
-            if !predicted.same_size(warped) {
-                return Err(size_error("the predicted vector field", predicted.width(), predicted.height(), w, h));
-            }
 
             let state = State {
                 width: w,
@@ -275,7 +283,7 @@ pub fn infill_iteratively(
                 .zip(&thresholds)
                 .with_min_len(PIXELS_PER_TASK)
                 .map(|(&i, &threshold)| {
-                    let vector = predicted.pixels()[i];
+                    let vector = out.vectors.pixels()[i];
                     if last {
                         last_outcome(&state, (i % w, i / w), vector)
                     } else {
@@ -306,6 +314,7 @@ pub fn infill_iteratively(
                         // The source `fill` copied, else the pixel itself (a composed vector of 0).
                         // Only the last iteration falls back, so no read sees this source.
                         let q = background_source(&nearest, warped_depth, p);
+                        out.vectors.pixels_mut()[i] = [0.0, 0.0];
                         if let Some(q) = q {
                             out.image.pixels_mut()[i] = warped.get(q.0, q.1);
                             out.vectors.pixels_mut()[i] = offset([q.0 as f32, q.1 as f32]);
@@ -338,7 +347,8 @@ pub fn infill_iteratively(
     Ok(out)
 }
 
-/// The frame-sized outputs before the first iteration: the warped frame, no vectors yet.
+/// The frame-sized outputs before the first iteration: the warped frame, and the vectors (zero;
+/// each iteration's predictions land in them at the pixels still to fill).
 struct Outputs {
     image: RgbImage,
     vectors: VectorField,
@@ -362,8 +372,6 @@ struct Working {
     prior: ScaledPrior,
     /// The disocclusion pixels still to fill.
     to_fill: Vec<bool>,
-    /// The predictor's vectors, read at the pixels still to fill.
-    predicted: VectorField,
 }
 
 impl Working {
@@ -379,12 +387,11 @@ impl Working {
             remaining.iter().for_each(|&i| to_fill[i] = true);
             to_fill
         };
-        let (w, h) = (warped_depth.width(), warped_depth.height());
-        let (((depth, known), predicted), ((sources, prior), to_fill)) = rayon::join(
-            || rayon::join(|| rayon::join(depth_where_known, || original_known.to_vec()), || VectorField::zeros(w, h)),
+        let ((depth, known), ((sources, prior), to_fill)) = rayon::join(
+            || rayon::join(depth_where_known, || original_known.to_vec()),
             || rayon::join(|| rayon::join(|| vec![[0f32; 2]; n], || prior.clone()), to_fill),
         );
-        Self { depth, known, sources, prior, to_fill, predicted }
+        Self { depth, known, sources, prior, to_fill }
     }
 }
 
