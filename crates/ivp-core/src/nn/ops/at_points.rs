@@ -11,6 +11,8 @@ use candle_core::{bail, DType, Device, Result, Storage, Tensor};
 
 use rayon::prelude::*;
 
+use std::ops::Range;
+
 use crate::nn::ops::conv2d::add_product;
 use crate::nn::ops::{contiguous_values, profile};
 
@@ -91,73 +93,76 @@ pub fn decoder_step_at(
         }
         let [coarse, skip, weight, bias] = slices[..] else { unreachable!("four tensors") };
         let n = points.len();
-        // Where each point's taps read in one channel of the upsampled coarse level and of the
-        // skip: the start of each of the three rows in the batch, and each of the three columns
-        // (OUTSIDE in the padding).
-        let reads = |upsampled: bool| -> Vec<[[usize; 3]; 2]> {
+        // Where each tap of each point reads within one channel's plane (None: in the padding),
+        // in the upsampled coarse level and in the skip.
+        let offsets = |upsampled: bool| -> Vec<Option<usize>> {
             let (plane, row) = if upsampled { (cc * h * w, w) } else { (cs * height * width, width) };
-            let level = |i: usize| if upsampled { i / 2 } else { i };
-            let along =
-                |at: usize, len: usize, d: usize| (at + d).checked_sub(1).filter(|&i| i < len).map_or(OUTSIDE, level);
-            let start = |p: &Pixel, d: usize| match along(p.y, height, d) {
-                OUTSIDE => OUTSIDE,
-                y => p.image * plane + y * row,
-            };
-            points.iter().map(|p| [[0, 1, 2].map(|d| start(p, d)), [0, 1, 2].map(|d| along(p.x, width, d))]).collect()
+            (0..9)
+                .flat_map(|tap| points.iter().map(move |p| (tap, p)))
+                .map(|(tap, p)| {
+                    let y = (p.y + tap / 3).checked_sub(1).filter(|&y| y < height)?;
+                    let x = (p.x + tap % 3).checked_sub(1).filter(|&x| x < width)?;
+                    Some(match upsampled {
+                        true => p.image * plane + y / 2 * row + x / 2,
+                        false => p.image * plane + y * row + x,
+                    })
+                })
+                .collect()
         };
-        let (from_coarse, from_skip) = (reads(true), reads(false));
-        // im2col of the points, one row of taps (channel, then 3x3 tap) per point: each point's
-        // values are written together, and each channel's rows read together.
-        let mut cols = vec![0f32; n * taps];
-        cols.par_chunks_mut(taps * POINTS_PER_TASK).enumerate().for_each(|(task, rows)| {
-            for (j, row) in rows.chunks_exact_mut(taps).enumerate() {
-                let i = task * POINTS_PER_TASK + j;
-                let mut values = row.chunks_exact_mut(9);
-                for (level, channels, plane, [starts, columns]) in
-                    [(coarse, cc, h * w, from_coarse[i]), (skip, cs, height * width, from_skip[i])]
-                {
-                    for (channel, taps) in (0..channels).zip(&mut values) {
-                        let level = &level[channel * plane..];
-                        for (dy, &start) in starts.iter().enumerate().filter(|(_, &s)| s != OUTSIDE) {
-                            for (dx, &x) in columns.iter().enumerate().filter(|(_, &x)| x != OUTSIDE) {
-                                taps[dy * 3 + dx] = level[start + x];
-                            }
-                        }
-                    }
+        let (from_coarse, from_skip) = (offsets(true), offsets(false));
+        // im2col of the points: row (channel, tap) holds what each point reads through that tap.
+        let mut cols = vec![0f32; taps * n];
+        cols.par_chunks_mut(9 * n).enumerate().for_each(|(channel, rows)| {
+            let (plane, offsets) = match channel < cc {
+                true => (&coarse[channel * h * w..], &from_coarse),
+                false => (&skip[(channel - cc) * height * width..], &from_skip),
+            };
+            for (v, offset) in rows.iter_mut().zip(offsets) {
+                if let Some(o) = offset {
+                    *v = plane[*o];
                 }
             }
         });
-        // The points' columns (N x taps) times the weights (taps x Cout), in blocks of points, in
-        // parallel: each output row is one point's, and its sums do not depend on the threads.
-        let mut weights_t = vec![0f32; taps * cout];
-        for (c, kernel) in weight.chunks_exact(taps).enumerate() {
-            for (r, &v) in kernel.iter().enumerate() {
-                weights_t[r * cout + c] = v;
+        // The weights (Cout x taps) times the columns (taps x N), in blocks of output channels
+        // and of points, in parallel; the blocks are fixed by the shapes, so the sums do not
+        // depend on the number of threads.
+        let blocks: Vec<(Range<usize>, Range<usize>)> = (0..cout)
+            .step_by(CHANNELS_PER_BLOCK)
+            .flat_map(|c| (0..n).step_by(POINTS_PER_BLOCK).map(move |p| (c, p)))
+            .map(|(c, p)| (c..(c + CHANNELS_PER_BLOCK).min(cout), p..(p + POINTS_PER_BLOCK).min(n)))
+            .collect();
+        let products: Vec<Vec<f32>> = blocks
+            .par_iter()
+            .map(|(channels, pixels)| {
+                let mut product: Vec<f32> =
+                    channels.clone().flat_map(|c| std::iter::repeat_n(bias[c], pixels.len())).collect();
+                let weights = &weight[channels.start * taps..channels.end * taps];
+                add_product(
+                    (channels.len(), pixels.len(), taps),
+                    (weights, taps),
+                    (&cols[pixels.start..], n),
+                    (&mut product, pixels.len()),
+                );
+                product
+            })
+            .collect();
+        let mut out = vec![0f32; n * cout];
+        for ((channels, pixels), product) in blocks.iter().zip(&products) {
+            for (c, row) in channels.clone().zip(product.chunks_exact(pixels.len())) {
+                for (i, v) in pixels.clone().zip(row) {
+                    out[i * cout + c] = if relu { v.max(0.0) } else { *v };
+                }
             }
         }
-        let mut out: Vec<f32> = (0..n).flat_map(|_| bias.iter().copied()).collect();
-        out.par_chunks_mut(cout * POINTS_PER_BLOCK).zip(cols.par_chunks(taps * POINTS_PER_BLOCK)).for_each(
-            |(out, cols)| {
-                add_product((out.len() / cout, cout, taps), (cols, taps), (&weights_t, cout), (&mut *out, cout));
-                if relu {
-                    out.iter_mut().for_each(|v| *v = v.max(0.0));
-                }
-            },
-        );
         Ok(out)
     })?;
     Tensor::from_vec(values, (points.len(), cout), &Device::Cpu)
 }
 
-/// Points of one product block of [`decoder_step_at`] (a fixed size, so that results do not
-/// depend on the number of threads): large enough for gemm's kernels.
+/// Output channels and points of one product block of [`decoder_step_at`] (a fixed size, so that
+/// results do not depend on the number of threads): large enough for gemm's kernels.
+const CHANNELS_PER_BLOCK: usize = 64;
 const POINTS_PER_BLOCK: usize = 512;
-
-/// Points per parallel task of the gather.
-const POINTS_PER_TASK: usize = 64;
-
-/// A row or column of a tap in the padding.
-const OUTSIDE: usize = usize::MAX;
 
 /// The map of shape (B, C, H, W) that holds `values` (N, C) at `points` and zeros elsewhere.
 pub fn scatter(values: &Tensor, points: &[Pixel], (b, c, h, w): (usize, usize, usize, usize)) -> Result<Tensor> {
@@ -193,12 +198,12 @@ mod tests {
 
     #[test]
     fn the_decoder_step_at_points_equals_the_dense_step_there() {
-        // The last case has more points than one product block holds, and many channels.
+        // The last case has more points and channels than one product block holds.
         for (b, cc, cs, cout, h, w, height, width) in [
             (2, 5, 3, 4, 6, 9, 12, 18),
             (2, 5, 3, 4, 6, 9, 11, 17),
             (2, 5, 3, 4, 1, 1, 2, 1),
-            (2, 6, 4, 70, 20, 21, 40, 41),
+            (2, 6, 4, CHANNELS_PER_BLOCK + 6, 20, 21, 40, 41),
         ] {
             let coarse = random(&[b, cc, h, w], 1);
             let skip = random(&[b, cs, height, width], 2);
