@@ -201,24 +201,20 @@ impl<'a> NetworkFrame<'a> {
         }
     }
 
-    /// The full-size prior of block `(cu, cv)` shrunk as [`shrink_vectors_in`] does it (the same
-    /// sums in the same order).
+    /// The full-size prior of block `(cu, cv)` shrunk as [`shrink_vectors_in`] does it (its rule,
+    /// the same sums in the same order).
     fn shrunk_block_prior(&self, cu: usize, cv: usize) -> [f32; 2] {
         let (s, w, h) = (self.factor, self.depth.width(), self.depth.height());
         let (mut sums, mut n) = ([0f64; 2], 0u32);
         for v in cv * s..((cv + 1) * s).min(h) {
             for u in cu * s..((cu + 1) * s).min(w) {
                 let [x, y] = self.prior.at(u, v);
-                if x != 0.0 || y != 0.0 {
+                if is_nonzero([x, y]) {
                     (sums, n) = ([sums[0] + x as f64, sums[1] + y as f64], n + 1);
                 }
             }
         }
-        if n == 0 {
-            [0.0, 0.0]
-        } else {
-            sums.map(|x| (x / (n * s as u32) as f64) as f32)
-        }
+        vector_block_mean(sums, n, s)
     }
 
     /// The network's hole mask in `window`: 1 at the pixels to predict, else 0.
@@ -357,18 +353,23 @@ fn shrink_depth_in(depth: &DepthMap, s: usize, window: Rect) -> DepthMap {
 /// In `window` of the shrunk frame, each block of `s x s` vectors (in pixels) becomes the mean
 /// of its non-zero vectors divided by `s`, or 0 when it has none.
 fn shrink_vectors_in(field: &VectorField, s: usize, window: Rect) -> VectorField {
-    let rule = BlockRule {
-        take: |[x, y]: [f32; 2]| x != 0.0 || y != 0.0,
-        flag: |_| false,
-        finish: |sums: [f64; 2], n, _| {
-            if n == 0 {
-                [0.0, 0.0]
-            } else {
-                sums.map(|x| (x / (n * s as u32) as f64) as f32)
-            }
-        },
-    };
+    let rule = BlockRule { take: is_nonzero, flag: |_| false, finish: |sums, n, _| vector_block_mean(sums, n, s) };
     shrink_blocks(field, s, window, None, rule)
+}
+
+/// Whether a vector counts in its block's mean.
+fn is_nonzero([x, y]: [f32; 2]) -> bool {
+    x != 0.0 || y != 0.0
+}
+
+/// A block of `s x s` vectors whose `n` non-zero ones sum to `sums`, shrunk: their mean divided
+/// by `s` (0 without any).
+fn vector_block_mean(sums: [f64; 2], n: u32, s: usize) -> [f32; 2] {
+    if n == 0 {
+        [0.0, 0.0]
+    } else {
+        sums.map(|x| (x / (n * s as u32) as f64) as f32)
+    }
 }
 
 /// The whole of `image` shrunk by blocks of `s`, in blocks.

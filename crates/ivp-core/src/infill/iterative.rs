@@ -314,11 +314,11 @@ pub fn infill_iteratively(
                         // The source `fill` copied, else the pixel itself (a composed vector of 0).
                         // Only the last iteration falls back, so no read sees this source.
                         let q = background_source(&nearest, warped_depth, p);
-                        out.vectors.pixels_mut()[i] = [0.0, 0.0];
                         if let Some(q) = q {
                             out.image.pixels_mut()[i] = warped.get(q.0, q.1);
-                            out.vectors.pixels_mut()[i] = offset([q.0 as f32, q.1 as f32]);
                         }
+                        // (Over the prediction the field held.)
+                        out.vectors.pixels_mut()[i] = q.map_or([0.0, 0.0], |q| offset([q.0 as f32, q.1 as f32]));
                         let q = q.unwrap_or(p);
                         sources[i] = [q.0 as f32, q.1 as f32];
                         out.fell_back += 1;
