@@ -165,7 +165,7 @@ impl ModelHarness {
             last: Some(&warped),
             last_warped: Some(&warped),
         };
-        let output = net.raw_output(&input).map_err(|e| e.to_string())?;
+        let output = net.masked_output(&input).map_err(|e| e.to_string())?;
         let values: Vec<f32> = output.flatten_all().and_then(|t| t.to_vec1()).map_err(|e| e.to_string())?;
         assert!(values.iter().all(|v| v.is_finite()), "a model that loaded gives non-finite output");
         Ok(())

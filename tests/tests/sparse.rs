@@ -81,3 +81,73 @@ fn a_frame_without_disocclusions_runs_no_network_pass() {
         assert_eq!((out.tiles, network), (0, Duration::ZERO), "{coverage:?}");
     }
 }
+
+/// Sparse against dense inference of a model trained by the recipe (committed with its run) on
+/// the committed Blender clips, every target, at the tolerance README.md and PERFORMANCE.md state
+/// for 320x240: vectors within 0.5 px at [`TRAINED_AGREEING_SHARE`] of the disocclusion pixels,
+/// D-MSE within [`TRAINED_D_MSE_TOLERANCE`]. A negative control without context around the tiles
+/// must fail the same check, or the check would prove nothing.
+#[test]
+fn a_trained_model_runs_sparse_as_dense_on_the_blender_clips() {
+    let model = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../results/ablate/full/seed0/model.safetensors");
+    let (net, _) = ivp_train::checkpoint::load_model(&model).unwrap();
+    let dense = compare_on_blender_dev(&net, Coverage::Dense);
+    let agreement = |shape: TileShape| {
+        let sparse = compare_on_blender_dev(&net, Coverage::Sparse(shape));
+        let (mut agreeing, mut holes) = (0usize, 0usize);
+        for ((dv, sv), d) in dense.iter().map(|f| &f.vectors).zip(sparse.iter().map(|f| &f.vectors)).zip(&dense) {
+            for ((a, b), &hole) in dv.iter().zip(sv).zip(&d.disocclusions) {
+                holes += usize::from(hole);
+                agreeing += usize::from(hole && (a[0] - b[0]).abs().max((a[1] - b[1]).abs()) <= VECTOR_TOLERANCE);
+            }
+        }
+        let mean = |frames: &[FrameOutcome]| frames.iter().filter_map(|f| f.d_mse).sum::<f64>() / frames.len() as f64;
+        (agreeing as f64 / holes as f64, (mean(&sparse) - mean(&dense)).abs() / mean(&dense))
+    };
+    let (share, d_mse_gap) = agreement(TileShape::DEFAULT);
+    eprintln!("default tiles: {:.3}% of the vectors agree, D-MSE gap {:.4}%", 100.0 * share, 100.0 * d_mse_gap);
+    assert!(share >= TRAINED_AGREEING_SHARE, "only {:.3}% of the vectors agree", 100.0 * share);
+    assert!(d_mse_gap <= TRAINED_D_MSE_TOLERANCE, "D-MSE differs by {:.3}%", 100.0 * d_mse_gap);
+    let (share, d_mse_gap) = agreement(TileShape::new(16, 0).unwrap());
+    eprintln!("no context: {:.3}% of the vectors agree, D-MSE gap {:.4}%", 100.0 * share, 100.0 * d_mse_gap);
+    assert!(
+        share < TRAINED_AGREEING_SHARE || d_mse_gap > TRAINED_D_MSE_TOLERANCE,
+        "tiles without context pass the check too ({:.3}%, {:.3}%): it cannot tell",
+        100.0 * share,
+        100.0 * d_mse_gap
+    );
+}
+
+/// The documented tolerance at 320x240 (README.md, "Usage"; PERFORMANCE.md, "Sparse inference").
+const TRAINED_AGREEING_SHARE: f64 = 0.999;
+const TRAINED_D_MSE_TOLERANCE: f64 = 0.002;
+
+struct FrameOutcome {
+    vectors: Vec<[f32; 2]>,
+    disocclusions: Vec<bool>,
+    d_mse: Option<f64>,
+}
+
+/// Every target (6, 8, 10) of every clip of data/blender-dev, predicted with `coverage`.
+fn compare_on_blender_dev(net: &IvpNet, coverage: Coverage) -> Vec<FrameOutcome> {
+    let model = ModelInfiller::new("ivp", net.clone(), 3).with_coverage(coverage);
+    let mut outcomes = Vec::new();
+    for dir in ivp_data::find_clips(ivp_tests::blender_dev()).unwrap() {
+        let clip = ivp_data::Clip::open(&dir).unwrap();
+        for t in [6, 8, 10] {
+            let frame = |i: usize| clip.load_frame(i).unwrap();
+            let (before_last, last, truth) = (frame(t - 3), frame(t - 1), frame(t));
+            let warp = ivp_train::eval::warp_to_target(&clip, &last, t);
+            let ctx = ivp_train::eval::target_context(&clip, [&before_last, &last], t, &warp, None);
+            let prediction = model.predict(&ctx).unwrap();
+            let disocclusions = warp.holes.disocclusions();
+            let d_mse = score_frame(&prediction.image.quantized_to_8bit(), &truth.image, &disocclusions).d_mse;
+            outcomes.push(FrameOutcome {
+                vectors: prediction.vectors.unwrap().pixels().to_vec(),
+                disocclusions,
+                d_mse,
+            });
+        }
+    }
+    outcomes
+}

@@ -73,7 +73,7 @@ fn exported_weights_give_the_same_vectors_in_pytorch() {
 
         let (prior, depth, hole) = inputs(37, 50);
         let ours = net
-            .raw_output(&NetInput {
+            .masked_output(&NetInput {
                 prior: &prior,
                 warped_depth: &depth,
                 mask: &hole,

@@ -20,7 +20,8 @@ fn tiny(steps: u64) -> TrainConfig {
         warmup_steps: 2,
         log_every: 2,
         validate_every: 0,
-        validation_samples: 4,
+        validation_clips: 1,
+        validation_hd_clips: 0,
         checkpoint_every: 3,
         keep_checkpoints: 10,
         ..TrainConfig::default()
@@ -143,12 +144,12 @@ fn generate_train_export_reload_and_evaluate() {
     let run = dir.path().join("run");
     let config = TrainConfig { data: Some(data.clone()), ..tiny(4) };
     let summary = train(&config, &run, &quiet()).unwrap();
-    let validation = summary.last_validation.expect("a validation at the end");
+    let validation = summary.last_validation.expect("a validation at the end").small.expect("320x240 frames");
     assert!(validation.d_mse.is_finite() && validation.d_ssim.is_finite());
 
     let exported = dir.path().join("exported.safetensors");
     let ckpt = latest_checkpoint(&run.join("checkpoints")).unwrap().unwrap();
-    let model_config = export_model(&ckpt, &exported).unwrap();
+    let model_config = export_model(std::slice::from_ref(&ckpt), &exported).unwrap();
     assert_eq!(model_config, config.model().unwrap());
     assert_eq!(parameters(&exported), parameters(&run.join("model.safetensors")));
 
@@ -166,4 +167,35 @@ fn generate_train_export_reload_and_evaluate() {
     if let (Some(d), Some(s)) = (ivp.d_mse, ivp.d_ssim) {
         assert!(d.is_finite() && s.is_finite());
     }
+}
+
+#[test]
+fn exporting_several_checkpoints_averages_their_parameters() {
+    let dir = tempfile::tempdir().unwrap();
+    let run = dir.path().join("run");
+    train(&tiny(6), &run, &quiet()).unwrap();
+    let checkpoints = run.join("checkpoints");
+    let (a, b) = (checkpoints.join("step_00000003.safetensors"), checkpoints.join("step_00000006.safetensors"));
+    let averaged = dir.path().join("averaged.safetensors");
+    export_model(&[a.clone(), b.clone()], &averaged).unwrap();
+    let (pa, pb, mean) = (parameters(&a), parameters(&b), parameters(&averaged));
+    // The checkpoints also hold Adam's state; the model holds the parameters alone.
+    let pa: Vec<_> = pa.into_iter().filter(|(n, _)| !n.starts_with("adam.")).collect();
+    let pb: Vec<_> = pb.into_iter().filter(|(n, _)| !n.starts_with("adam.")).collect();
+    assert_eq!(mean.len(), pa.len());
+    let mut moved = 0;
+    for (((name, m), (_, x)), (_, y)) in mean.iter().zip(&pa).zip(&pb) {
+        for ((m, x), y) in m.iter().zip(x).zip(y) {
+            assert!((m - (x + y) / 2.0).abs() <= 1e-6 * (x.abs() + y.abs()).max(1e-6), "{name}: {m} vs {x}, {y}");
+            moved += usize::from(x != y);
+        }
+    }
+    assert!(moved > 0, "the two checkpoints must differ for the test to mean anything");
+    assert_eq!(model_step(&averaged), 6, "the model records the last step it averages");
+
+    // Checkpoints of different networks cannot be averaged.
+    let other = dir.path().join("other");
+    train(&TrainConfig { width_mult: 0.25, ..tiny(3) }, &other, &quiet()).unwrap();
+    let err = export_model(&[a, other.join("model.safetensors")], &averaged).unwrap_err().to_string();
+    assert!(err.contains("cannot be averaged"), "{err}");
 }

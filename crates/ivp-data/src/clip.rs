@@ -221,6 +221,15 @@ fn check_pose_count(dir: &Path, files: &[FrameFiles], poses: usize) -> Result<()
     Err(DataError::invalid(&dir.join(POSES_FILE), problem))
 }
 
+/// The smallest frame side ivp accepts: a thinner frame is a strip whose every pixel lies on the
+/// border, where warping, the hole search and SSIM's window have nothing to work with. The check
+/// comes before the intrinsics', whose complaint about such a frame would miss the point.
+pub const MIN_FRAME_SIDE: usize = 4;
+
+/// The most pixels a frame may have (8192 x 8192, above 8K UHD): a header claiming more is refused
+/// before anything is decoded, so that no reader allocates for it.
+pub const MAX_FRAME_PIXELS: usize = 8192 * 8192;
+
 /// The size shared by every image and depth file, from their headers.
 fn common_size(format: ClipFormat, files: &[FrameFiles]) -> Result<(usize, usize)> {
     let depth_size = |path: &Path| match format {
@@ -228,6 +237,19 @@ fn common_size(format: ClipFormat, files: &[FrameFiles]) -> Result<(usize, usize
         ClipFormat::SceneNet => image_size(path),
     };
     let expected = image_size(&files[0].image)?;
+    let (width, height) = expected;
+    if width < MIN_FRAME_SIDE || height < MIN_FRAME_SIDE {
+        let problem = format!(
+            "the frame is {width}x{height} pixels: ivp needs frames of at least {MIN_FRAME_SIDE}x{MIN_FRAME_SIDE}"
+        );
+        return Err(DataError::invalid(&files[0].image, problem));
+    }
+    if width.saturating_mul(height) > MAX_FRAME_PIXELS {
+        let problem = format!(
+            "the header claims {width}x{height} pixels, more than ivp reads ({MAX_FRAME_PIXELS} pixels, 8192x8192)"
+        );
+        return Err(DataError::invalid(&files[0].image, problem));
+    }
     for frame in files {
         check_size(&frame.image, image_size(&frame.image)?, expected)?;
         check_size(&frame.depth, depth_size(&frame.depth)?, expected)?;

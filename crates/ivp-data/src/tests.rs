@@ -785,3 +785,50 @@ fn durable_and_atomic_writes_replace_the_whole_file_and_leave_no_temporary_behin
         assert!(err.to_string().contains("missing"), "{err}");
     }
 }
+
+#[test]
+fn frames_too_small_or_too_large_are_refused_by_size_before_anything_else() {
+    // A strip 320x3: refused for its size, not for the principal point its intrinsics put outside it.
+    let dir = temp();
+    let frames: Vec<Frame> = (0..2).map(|i| tiny_frame(320, 3, i)).collect();
+    let poses: Vec<WorldToCamera> = (0..2).map(tiny_pose).collect();
+    write_clip(dir.path(), &frames, &poses, Some(&Intrinsics::new(300.0, 300.0, 159.5, 1.0))).unwrap();
+    // The intrinsics of the 320x240 frames the strip was cut from.
+    std::fs::write(dir.path().join("CameraIntrinsics.csv"), "300,0,159.5\n0,300,119.5\n0,0,1\n").unwrap();
+    let err = open_err(dir.path());
+    assert_message(&err, &dir.path().join("rgb/0000.png"), &["320x3", "at least 4x4"]);
+    assert!(!err.to_string().contains("principal point"), "{err}");
+
+    // A PNG whose header claims 60000x60000 pixels: refused from the header, nothing decoded.
+    let dir = temp();
+    write_tiny_clip(dir.path(), 2);
+    for i in 0..2 {
+        let path = dir.path().join(format!("rgb/{i:04}.png"));
+        std::fs::write(&path, png_header_claiming(60_000, 60_000)).unwrap();
+    }
+    let err = open_err(dir.path());
+    assert_message(&err, &dir.path().join("rgb/0000.png"), &["60000x60000", "more than ivp reads"]);
+}
+
+/// A PNG whose header (IHDR, with a correct checksum) claims `w` x `h` RGB pixels, followed by
+/// an empty image-data chunk and the end: what a reader sees before it allocates the pixels.
+fn png_header_claiming(w: u32, h: u32) -> Vec<u8> {
+    let chunk = |kind: &[u8], data: &[u8]| -> Vec<u8> {
+        let body = [kind, data].concat();
+        [&(data.len() as u32).to_be_bytes()[..], &body, &crc32(&body).to_be_bytes()].concat()
+    };
+    let ihdr = [&w.to_be_bytes()[..], &h.to_be_bytes(), &[8, 2, 0, 0, 0]].concat();
+    [&b"\x89PNG\r\n\x1a\n"[..], &chunk(b"IHDR", &ihdr), &chunk(b"IDAT", &[]), &chunk(b"IEND", &[])].concat()
+}
+
+/// PNG's CRC-32 (ISO 3309), bit by bit.
+fn crc32(bytes: &[u8]) -> u32 {
+    let mut crc = !0u32;
+    for &b in bytes {
+        crc ^= u32::from(b);
+        for _ in 0..8 {
+            crc = if crc & 1 == 1 { (crc >> 1) ^ 0xEDB8_8320 } else { crc >> 1 };
+        }
+    }
+    !crc
+}

@@ -17,7 +17,8 @@ use rand_distr::StandardNormal;
 use serde::Serialize;
 
 use crate::distributed::SingleProcess;
-use crate::train::{training_step, Guide};
+use crate::guide::Guide;
+use crate::train::training_step;
 
 /// One benchmark's result: the keys of `torch_reference.py`, plus where the time went.
 #[derive(Clone, Debug, Serialize)]

@@ -1,31 +1,41 @@
-//! `ivp bench frame`: one frame end to end on a generated clip (warp, holes, prior, network,
-//! infill), split by stage, with the hole fraction, the tiles run and the frame's D-MSE beside
-//! `fill`'s, so that every time is printed with its error.
+//! `ivp bench frame`: one frame end to end (warp, holes, prior, network, infill), split by stage,
+//! with the hole fraction, the tiles run, the pixels they read and the frame's D-MSE beside
+//! `fill`'s, so that every time is printed with its error. The frame is generated, or each target
+//! of a clip on disk (`--data CLIP --targets ...`): users judge the speed on their own frames.
 
 use std::collections::BTreeMap;
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
 use anyhow::{ensure, Context, Result};
-use ivp_core::geometry::FrameView;
 use ivp_core::inference::{Coverage, ModelInfiller, Scale};
 use ivp_core::infill::{classical_infiller, InfillContext};
 use ivp_core::metrics::score_frame;
 use ivp_core::nn::model::{IvpNet, ModelConfig, Variant};
 use ivp_core::{relative_pose, warp_forward};
-use ivp_data::{render_clip, SceneParams};
+use ivp_data::samples::ClipFrames;
+use ivp_data::{render_clip, Clip, SceneParams};
 use serde::Serialize;
 
 use ivp_core::nn::ops::profile;
 
 use crate::bench::{operator_breakdown, OperatorTimes};
 use crate::checkpoint::load_model;
+use crate::eval::check_targets;
+
+/// Where the frames come from.
+#[derive(Clone, Debug)]
+pub enum FrameSource {
+    /// One generated frame of this size (the scene of `seed`).
+    Generated { height: usize, width: usize, seed: u64 },
+    /// Targets of a clip on disk, each predicted from frames `t - 3` and `t - 1` as `ivp eval` does.
+    Clip { dir: PathBuf, targets: Vec<usize> },
+}
 
 /// What `ivp bench frame` times.
 #[derive(Clone, Debug)]
 pub struct FrameCase {
-    pub height: usize,
-    pub width: usize,
+    pub frames: FrameSource,
     /// A trained model; without it, a network of `width_mult` with seeded (untrained) weights.
     pub model: Option<PathBuf>,
     pub width_mult: f64,
@@ -37,7 +47,7 @@ pub struct FrameCase {
     pub scale: Scale,
     /// Timed runs, after one untimed warm-up run.
     pub runs: usize,
-    /// Seed of the generated scene (and of the untrained weights).
+    /// Seed of the untrained weights.
     pub seed: u64,
     /// Also report the network's time by operator.
     pub profile: bool,
@@ -54,6 +64,11 @@ pub struct StageTime {
 #[derive(Clone, Debug, Serialize)]
 pub struct FrameReport {
     pub case: &'static str,
+    /// The clip and target of a frame read from disk.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub clip: Option<String>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub target: Option<usize>,
     pub height: usize,
     pub width: usize,
     pub width_mult: f64,
@@ -73,6 +88,9 @@ pub struct FrameReport {
     pub hole_fraction: f64,
     /// Tiles the network ran on over the iterations of one frame (0 when dense).
     pub tiles: usize,
+    /// Pixels of the frame the network saw (shrunk by `scale`) that it read over the iterations of
+    /// one frame, as a fraction of that frame's pixels (3 = three dense passes).
+    pub pixels_read_fraction: f64,
     /// By stage: `warp`, `holes`, `prior`, `network`, `infill`, and `total`.
     pub stages: BTreeMap<&'static str, StageTime>,
     /// D-MSE of the frame (8-bit), and of `fill` on the same warp.
@@ -84,11 +102,61 @@ pub struct FrameReport {
     pub network_profile: Option<OperatorTimes>,
 }
 
-/// Frame `n - 2`, `n` and the target `t = n + 1` of the generated clip.
-const FRAMES: usize = 4;
-const TARGET: usize = 3;
+/// The frames of a clip's run: every target's report, and the end-to-end time over them.
+#[derive(Clone, Debug, Serialize)]
+pub struct ClipReport {
+    pub case: &'static str,
+    pub clip: String,
+    /// The median, fastest and slowest of the frames' median `total` times.
+    pub total_over_frames: StageTime,
+    pub frames: Vec<FrameReport>,
+}
 
+/// Frame `n - 2`, `n` and the target `t = n + 1` of the generated clip.
+const GENERATED_FRAMES: usize = 4;
+const GENERATED_TARGET: usize = 3;
+
+/// Times the generated frame of `case` (`FrameSource::Generated`).
 pub fn bench_frame(case: &FrameCase) -> Result<FrameReport> {
+    let FrameSource::Generated { height, width, seed } = case.frames else {
+        anyhow::bail!("bench_frame times a generated frame: use bench_clip for a clip");
+    };
+    let model = model_of(case)?;
+    let params = SceneParams { width, height, frames: GENERATED_FRAMES, ..Default::default() };
+    let clip: ClipFrames = render_clip(seed, &params).into();
+    time_target(case, &model, &clip, GENERATED_TARGET)
+}
+
+/// Times every target of the clip of `case` (`FrameSource::Clip`).
+pub fn bench_clip(case: &FrameCase) -> Result<ClipReport> {
+    let FrameSource::Clip { dir, targets } = &case.frames else {
+        anyhow::bail!("bench_clip times the targets of a clip: use bench_frame for a generated frame");
+    };
+    ensure!(!targets.is_empty(), "--targets: give at least one target");
+    let model = model_of(case)?;
+    let clip = Clip::open(dir)?;
+    check_targets(&clip, targets)?;
+    let mut frames = Vec::with_capacity(targets.len());
+    for &t in targets {
+        // Only the frames a target reads: t - 3, t - 1 and t itself.
+        let first = t - 3;
+        let loaded = ClipFrames {
+            frames: (first..=t).map(|i| clip.load_frame(i)).collect::<Result<_, _>>()?,
+            poses: clip.poses()[first..=t].to_vec(),
+            intrinsics: *clip.intrinsics(),
+        };
+        let mut report = time_target(case, &model, &loaded, 3)?;
+        report.case = "clip";
+        report.clip = Some(dir.display().to_string());
+        report.target = Some(t);
+        frames.push(report);
+    }
+    let totals: Vec<Duration> =
+        frames.iter().map(|f| Duration::from_secs_f64(f.stages["total"].median_ms / 1e3)).collect();
+    Ok(ClipReport { case: "clip", clip: dir.display().to_string(), total_over_frames: stage_time(totals), frames })
+}
+
+fn model_of(case: &FrameCase) -> Result<ModelInfiller> {
     ensure!(case.runs > 0 && case.iterations > 0, "--runs and --iterations must be at least 1");
     let net = match &case.model {
         Some(path) => load_model(path)?.0,
@@ -98,13 +166,15 @@ pub fn bench_frame(case: &FrameCase) -> Result<FrameReport> {
         }
     };
     ensure!(net.config().variant.predicts_vectors(), "ivp bench frame times the vector variants only");
-    let (width_mult, depth_head_mult) = (net.config().width_mult, net.config().depth_head_mult);
-    let model = ModelInfiller::new("ivp", net, case.iterations).with_coverage(case.coverage).with_scale(case.scale);
-    let params = SceneParams { width: case.width, height: case.height, frames: FRAMES, ..Default::default() };
-    let clip = render_clip(case.seed, &params);
-    let view =
-        |i: usize| FrameView { image: &clip.frames[i].image, depth: &clip.frames[i].depth, pose: &clip.poses[i] };
-    let (last, target) = (TARGET - 1, TARGET);
+    Ok(ModelInfiller::new("ivp", net, case.iterations).with_coverage(case.coverage).with_scale(case.scale))
+}
+
+/// Target `target` of `clip` (frames `target - 3 ..= target` present) predicted `case.runs` times
+/// after a warm-up run, by stage, as `ivp eval` predicts it.
+fn time_target(case: &FrameCase, model: &ModelInfiller, clip: &ClipFrames, target: usize) -> Result<FrameReport> {
+    let (width_mult, depth_head_mult) = (model.net().config().width_mult, model.net().config().depth_head_mult);
+    let (width, height) = clip.size();
+    let last = target - 1;
     let to_target = relative_pose(&clip.poses[last], &clip.poses[target]);
 
     let mut times: BTreeMap<&'static str, Vec<Duration>> = BTreeMap::new();
@@ -118,8 +188,8 @@ pub fn bench_frame(case: &FrameCase) -> Result<FrameReport> {
         let holes_time = started.elapsed();
         let ctx = InfillContext {
             intrinsics: &clip.intrinsics,
-            last: view(last),
-            before_last: Some(view(TARGET - 3)),
+            last: clip.view(last),
+            before_last: Some(clip.view(target - 3)),
             target_pose: &clip.poses[target],
             warped: &warp,
             ground_truth: None,
@@ -144,21 +214,26 @@ pub fn bench_frame(case: &FrameCase) -> Result<FrameReport> {
             let score =
                 |image: &ivp_core::RgbImage| score_frame(&image.quantized_to_8bit(), truth, &disocclusions).d_mse;
             let hole_fraction = disocclusions.iter().filter(|&&d| d).count() as f64 / disocclusions.len() as f64;
-            outcome = Some((hole_fraction, prediction.tiles, score(&prediction.image), score(&fill)));
+            let factor = case.scale.factor(height);
+            let seen = width.div_ceil(factor) * height.div_ceil(factor);
+            let read = prediction.pixels_read as f64 / seen as f64;
+            outcome = Some((hole_fraction, prediction.tiles, read, score(&prediction.image), score(&fill)));
         }
     }
     profile::set_enabled(false);
     let operators = profile::take();
     let network_profile = case.profile.then(|| operator_breakdown(&operators, &times["network"]));
-    let (hole_fraction, tiles, d_mse, d_mse_fill) = outcome.expect("at least one timed run");
+    let (hole_fraction, tiles, pixels_read_fraction, d_mse, d_mse_fill) = outcome.expect("at least one timed run");
     let (tile_core, tile_margin) = match case.coverage {
         Coverage::Sparse(shape) => (Some(shape.core), Some(shape.margin)),
         Coverage::Dense => (None, None),
     };
     Ok(FrameReport {
         case: "frame",
-        height: case.height,
-        width: case.width,
+        clip: None,
+        target: None,
+        height,
+        width,
         width_mult,
         depth_head_mult,
         trained: case.model.is_some(),
@@ -166,11 +241,12 @@ pub fn bench_frame(case: &FrameCase) -> Result<FrameReport> {
         coverage: if tile_core.is_some() { "sparse" } else { "dense" },
         tile_core,
         tile_margin,
-        scale: case.scale.factor(case.height),
+        scale: case.scale.factor(height),
         runs: case.runs,
         threads: rayon::current_num_threads(),
         hole_fraction,
         tiles,
+        pixels_read_fraction,
         stages: times.into_iter().map(|(name, t)| (name, stage_time(t))).collect(),
         d_mse,
         d_mse_fill,

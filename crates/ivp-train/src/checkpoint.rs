@@ -156,10 +156,30 @@ pub fn load_checkpoint(path: &Path) -> Result<Checkpoint, CheckpointError> {
 }
 
 /// Writes the model file of a checkpoint (or copies a model file), after checking that its
-/// parameters build the network its metadata describes.
-pub fn export_model(checkpoint: &Path, out: &Path) -> Result<ModelConfig, CheckpointError> {
-    let (_, config, mut tensors, step) = read_model(checkpoint)?;
-    let mut tensors: Vec<(String, Tensor)> = tensors.drain().collect();
+/// parameters build the network its metadata describes. Several checkpoints (of one network) are
+/// averaged parameter by parameter, in the order given: the mean of the weights of the last steps
+/// of a run varies less from seed to seed than the last step's (results/recipe-hd/README.md).
+pub fn export_model(checkpoints: &[PathBuf], out: &Path) -> Result<ModelConfig, CheckpointError> {
+    let Some((first, rest)) = checkpoints.split_first() else {
+        return Err(invalid(out, "no checkpoint to export"));
+    };
+    let (_, config, mut sum, mut step) = read_model(first)?;
+    for path in rest {
+        let (_, other, tensors, other_step) = read_model(path)?;
+        if other != config {
+            return Err(invalid(path, format!("a {other:?} network cannot be averaged with {first:?}'s {config:?}")));
+        }
+        for (name, total) in sum.iter_mut() {
+            let t = tensors.get(name).ok_or_else(|| invalid(path, format!("parameter `{name}` is missing")))?;
+            *total = total.add(t).map_err(|e| invalid(path, format!("parameter `{name}`: {e}")))?;
+        }
+        step = step.max(other_step);
+    }
+    let count = checkpoints.len() as f64;
+    let mut tensors: Vec<(String, Tensor)> = sum
+        .into_iter()
+        .map(|(name, t)| Ok((name.clone(), (t / count).map_err(|e| invalid(out, format!("`{name}`: {e}")))?)))
+        .collect::<Result<_, CheckpointError>>()?;
     tensors.sort_by(|a, b| a.0.cmp(&b.0));
     write(out, tensors, model_metadata(&config, MODEL_FORMAT, step))?;
     Ok(config)

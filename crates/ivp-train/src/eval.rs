@@ -145,6 +145,19 @@ pub struct EvalReport {
     pub targets: Vec<usize>,
     #[serde(serialize_with = "serialize_methods")]
     pub methods: Vec<MethodReport>,
+    /// Every frame's D-MSE per method, in the order evaluated: the pooled figures hide the frame
+    /// where a method loses.
+    pub per_frame: Vec<FrameRecord>,
+}
+
+/// The scores of one target frame.
+#[derive(Clone, Debug, Serialize)]
+pub struct FrameRecord {
+    pub clip: String,
+    pub target: usize,
+    pub disocclusion_pixels: usize,
+    /// D-MSE by method name (`None` without disocclusions).
+    pub d_mse: BTreeMap<String, Option<f64>>,
 }
 
 fn serialize_methods<S: serde::Serializer>(methods: &[MethodReport], s: S) -> Result<S::Ok, S::Error> {
@@ -220,6 +233,27 @@ pub fn warp_to_target(clip: &Clip, last: &Frame, t: usize) -> Warp {
     warp_forward(&last.image, &last.depth, clip.intrinsics(), &transform)
 }
 
+/// What every method predicts target `t` of `clip` from: frames `t - 3` and `t - 1` (`frames`),
+/// the warp of `t - 1` into view `t`, and the target frame for the methods that read it.
+pub fn target_context<'a>(
+    clip: &'a Clip,
+    frames: [&'a Frame; 2],
+    t: usize,
+    warp: &'a Warp,
+    ground_truth: Option<&'a RgbImage>,
+) -> InfillContext<'a> {
+    let [before_last, last] = frames;
+    let view = |frame: &'a Frame, i: usize| FrameView { image: &frame.image, depth: &frame.depth, pose: clip.pose(i) };
+    InfillContext {
+        intrinsics: clip.intrinsics(),
+        last: view(last, t - 1),
+        before_last: Some(view(before_last, t - 3)),
+        target_pose: clip.pose(t),
+        warped: warp,
+        ground_truth,
+    }
+}
+
 /// Checks that `targets` can be predicted in a clip of `len` frames: each needs `t - 3 .. t`.
 pub fn check_targets(clip: &Clip, targets: &[usize]) -> Result<()> {
     for &t in targets {
@@ -260,10 +294,11 @@ pub fn evaluate(data: &Path, targets: &[usize], methods: &[Method], progress: bo
     let bar = progress_bar(progress, (clips.len() * sorted_targets.len()) as u64, "evaluating");
     let mut acc: Vec<Accumulator> = methods.iter().map(|_| Accumulator::default()).collect();
     let mut names = Vec::new();
+    let mut per_frame = Vec::new();
     for clip in &clips {
         let name = clip_name(data, clip.path());
         bar.set_message(name.clone());
-        evaluate_clip(clip, &name, &sorted_targets, methods, &mut acc, &bar)?;
+        evaluate_clip(clip, &name, &sorted_targets, methods, &mut acc, &mut per_frame, &bar)?;
         names.push(name);
     }
     bar.finish_and_clear();
@@ -276,7 +311,7 @@ pub fn evaluate(data: &Path, targets: &[usize], methods: &[Method], progress: bo
             Method::External { name, .. } => a.report(name, false, false),
         })
         .collect();
-    Ok(EvalReport { clips: names, targets: sorted_targets, methods: reports })
+    Ok(EvalReport { clips: names, targets: sorted_targets, methods: reports, per_frame })
 }
 
 /// Writes `report` as JSON to `path` (atomically), creating its folder.
@@ -301,6 +336,7 @@ fn evaluate_clip(
     targets: &[usize],
     methods: &[Method],
     acc: &mut [Accumulator],
+    per_frame: &mut Vec<FrameRecord>,
     bar: &ProgressBar,
 ) -> Result<()> {
     let first = targets[0] - 3;
@@ -324,21 +360,17 @@ fn evaluate_clip(
         let disocclusions = warp.holes.disocclusions();
 
         let mut predictions = Vec::with_capacity(methods.len());
+        let mut record = FrameRecord {
+            clip: name.to_string(),
+            target: t,
+            disocclusion_pixels: disocclusions.iter().filter(|&&d| d).count(),
+            d_mse: BTreeMap::new(),
+        };
         for (method, acc) in methods.iter().zip(acc.iter_mut()) {
             let prediction = match method {
                 Method::Internal(infiller) => {
-                    let ctx = InfillContext {
-                        intrinsics: clip.intrinsics(),
-                        last: FrameView { image: &last_frame.image, depth: &last_frame.depth, pose: clip.pose(t - 1) },
-                        before_last: Some(FrameView {
-                            image: &before_last.image,
-                            depth: &before_last.depth,
-                            pose: clip.pose(t - 3),
-                        }),
-                        target_pose: clip.pose(t),
-                        warped: &warp,
-                        ground_truth: infiller.uses_ground_truth().then_some(&truth.image),
-                    };
+                    let truth = infiller.uses_ground_truth().then_some(&truth.image);
+                    let ctx = target_context(clip, [before_last, last_frame], t, &warp, truth);
                     let infill =
                         || infiller.infill(&ctx).with_context(|| format!("{} on {name}, target {t}", infiller.name()));
                     if warm_up {
@@ -370,9 +402,12 @@ fn evaluate_clip(
                     image.quantized_to_8bit()
                 }
             };
-            acc.add(&score_frame(&prediction, &truth.image, &disocclusions));
+            let scores = score_frame(&prediction, &truth.image, &disocclusions);
+            record.d_mse.insert(method.name().to_string(), scores.d_mse);
+            acc.add(&scores);
             predictions.push(prediction);
         }
+        per_frame.push(record);
         outcomes.insert(t, TargetOutcome { warp, predictions });
         bar.inc(1);
     }

@@ -1,13 +1,13 @@
 //! `metrics.csv` of a training run: one row per logged step (the training losses averaged since the
-//! previous row, the validation scores when the step validated, `fill` on the same crops), read
-//! back when a run resumes and drawn by `plot`.
+//! previous row, the validation scores at 320x240 and 1920x1080 when the step validated, `fill` on
+//! the same frames), read back when a run resumes and drawn by `plot`.
 
 use std::path::PathBuf;
 use std::time::Duration;
 
 use anyhow::{ensure, Context, Result};
 
-use crate::validation::ValidationScores;
+use crate::validation::{ValidationReport, ValidationScores};
 
 /// The loss terms of one training step, as numbers.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
@@ -49,12 +49,19 @@ impl LossWindow {
 pub struct MetricsRow {
     pub step: u64,
     pub loss: LossValues,
-    pub validation: Option<ValidationScores>,
-    pub fill: ValidationScores,
+    pub validation: Option<ValidationReport>,
+    pub fill: ValidationReport,
     pub elapsed: Duration,
 }
 
-const METRICS_HEADER: &str = "step,mse,ssim,smooth,guide,total,val_d_mse,val_d_ssim,fill_d_mse,fill_d_ssim,elapsed_s";
+const METRICS_HEADER: &str = "step,mse,ssim,smooth,guide,total,val_d_mse,val_d_ssim,fill_d_mse,fill_d_ssim,\
+                              val_hd_d_mse,val_hd_d_ssim,fill_hd_d_mse,fill_hd_d_ssim,elapsed_s";
+const METRICS_FIELDS: usize = 15;
+
+/// Two fields, D-MSE and D-SSIM, empty where there is no score.
+fn score_fields(s: Option<ValidationScores>) -> String {
+    s.map_or(",".to_string(), |s| format!("{:.3},{:.5}", s.d_mse, s.d_ssim))
+}
 
 /// `metrics.csv`, rewritten atomically after every row so that it is always complete.
 pub struct MetricsLog {
@@ -91,6 +98,10 @@ impl MetricsLog {
         &self.rows
     }
 
+    pub fn last_mut(&mut self) -> Option<&mut MetricsRow> {
+        self.rows.last_mut()
+    }
+
     pub fn last_elapsed(&self) -> Duration {
         self.rows.last().map_or(Duration::ZERO, |r| r.elapsed)
     }
@@ -99,21 +110,19 @@ impl MetricsLog {
         let mut text = String::from(METRICS_HEADER);
         text.push('\n');
         for r in &self.rows {
-            let v = r
-                .validation
-                .map_or((String::new(), String::new()), |v| (format!("{:.3}", v.d_mse), format!("{:.5}", v.d_ssim)));
+            let v = r.validation.unwrap_or_default();
             text.push_str(&format!(
-                "{},{:.6},{:.6},{:.6},{:.6},{:.6},{},{},{:.3},{:.5},{:.1}\n",
+                "{},{:.6},{:.6},{:.6},{:.6},{:.6},{},{},{},{},{:.1}\n",
                 r.step,
                 r.loss.mse,
                 r.loss.ssim,
                 r.loss.smooth,
                 r.loss.guide,
                 r.loss.total,
-                v.0,
-                v.1,
-                r.fill.d_mse,
-                r.fill.d_ssim,
+                score_fields(v.small),
+                score_fields(r.fill.small),
+                score_fields(v.large),
+                score_fields(r.fill.large),
                 r.elapsed.as_secs_f64()
             ));
         }
@@ -124,11 +133,16 @@ impl MetricsLog {
 
 fn parse_row(line: &str) -> Result<MetricsRow> {
     let f: Vec<&str> = line.split(',').collect();
-    ensure!(f.len() == 11, "{} fields, expected 11", f.len());
+    ensure!(f.len() == METRICS_FIELDS, "{} fields, expected {METRICS_FIELDS}", f.len());
     let num =
         |i: usize| -> Result<f64> { f[i].parse::<f64>().with_context(|| format!("field {} is `{}`", i + 1, f[i])) };
-    let validation = (!f[6].is_empty())
-        .then(|| -> Result<ValidationScores> { Ok(ValidationScores { d_mse: num(6)?, d_ssim: num(7)? }) });
+    let scores = |i: usize| -> Result<Option<ValidationScores>> {
+        (!f[i].is_empty()).then(|| Ok(ValidationScores { d_mse: num(i)?, d_ssim: num(i + 1)? })).transpose()
+    };
+    let report = |small: usize, large: usize| -> Result<ValidationReport> {
+        Ok(ValidationReport { small: scores(small)?, large: scores(large)? })
+    };
+    let validation = report(6, 10)?;
     Ok(MetricsRow {
         step: f[0].parse().with_context(|| format!("step `{}`", f[0]))?,
         loss: LossValues {
@@ -138,9 +152,9 @@ fn parse_row(line: &str) -> Result<MetricsRow> {
             guide: num(4)? as f32,
             total: num(5)? as f32,
         },
-        validation: validation.transpose()?,
-        fill: ValidationScores { d_mse: num(8)?, d_ssim: num(9)? },
-        elapsed: Duration::from_secs_f64(num(10)?.max(0.0)),
+        validation: (validation != ValidationReport::default()).then_some(validation),
+        fill: report(8, 12)?,
+        elapsed: Duration::from_secs_f64(num(14)?.max(0.0)),
     })
 }
 
@@ -148,9 +162,16 @@ fn parse_row(line: &str) -> Result<MetricsRow> {
 mod tests {
     use super::*;
 
-    fn row(step: u64, validation: Option<ValidationScores>) -> MetricsRow {
+    fn report(d_mse: f64, d_ssim: f64) -> ValidationReport {
+        ValidationReport {
+            small: Some(ValidationScores { d_mse, d_ssim }),
+            large: Some(ValidationScores { d_mse: 2.0 * d_mse, d_ssim }),
+        }
+    }
+
+    fn row(step: u64, validation: Option<ValidationReport>) -> MetricsRow {
         let loss = LossValues { mse: 0.5, ssim: 0.25, smooth: 0.125, guide: 0.0, total: 0.875 };
-        let fill = ValidationScores { d_mse: 581.5, d_ssim: 0.75 };
+        let fill = ValidationReport { large: None, ..report(581.5, 0.75) };
         MetricsRow { step, loss, validation, fill, elapsed: Duration::from_secs(step) }
     }
 
@@ -160,13 +181,14 @@ mod tests {
         let path = dir.path().join("metrics.csv");
         let mut log = MetricsLog::new(path.clone());
         log.push(row(25, None));
-        log.push(row(50, Some(ValidationScores { d_mse: 400.25, d_ssim: 0.5 })));
+        log.push(row(50, Some(report(400.25, 0.5))));
         log.push(row(75, None));
         log.save().unwrap();
         let resumed = MetricsLog::resume(path, 50).unwrap();
         let steps: Vec<u64> = resumed.rows().iter().map(|r| r.step).collect();
         assert_eq!(steps, [25, 50]);
-        assert_eq!(resumed.rows()[1].validation, Some(ValidationScores { d_mse: 400.25, d_ssim: 0.5 }));
+        assert_eq!(resumed.rows()[1].validation, Some(report(400.25, 0.5)));
+        assert_eq!(resumed.rows()[1].fill, row(50, None).fill, "a size without frames reads back as none");
         assert_eq!(resumed.rows()[0].loss, row(25, None).loss);
         assert_eq!(resumed.last_elapsed(), Duration::from_secs(50));
     }

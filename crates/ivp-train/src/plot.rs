@@ -11,6 +11,7 @@ use ivp_plot::plotters::prelude::*;
 use ivp_plot::{draw_legend, house_style, register_font, tick_label, Axis, LegendEntry, Mark, Stroke, FONT};
 
 use crate::metrics_csv::MetricsRow;
+use crate::validation::{ValidationReport, ValidationScores};
 
 const WIDTH: u32 = 1150;
 const PANEL_HEIGHT: u32 = 380;
@@ -82,21 +83,42 @@ fn loss_panel(rows: &[MetricsRow]) -> Panel {
     Panel { title: "Training loss (mean over each logging window)", y_label: "loss", curves }
 }
 
-/// The network's validation D-MSE beside `fill`'s on the same crops (a constant).
+/// The network's validation D-MSE at each size as a ratio to `fill`'s on the same frames (1: as
+/// good as `fill`), so that both sizes share one axis.
 fn validation_panel(rows: &[MetricsRow], max_step: f64) -> Panel {
-    let validation: Vec<(f64, f64)> =
-        rows.iter().filter_map(|r| r.validation.map(|v| (r.step as f64, v.d_mse))).collect();
-    let mut curves =
-        vec![Curve { label: "network".to_string(), colour: ivp_plot::colour(0), points: validation, markers: true }];
-    if let Some(fill) = rows.first().map(|r| r.fill.d_mse) {
+    type SizeOf = fn(&ValidationReport) -> Option<ValidationScores>;
+    let sizes: [(&str, SizeOf); 2] = [("320x240", |r| r.small), ("1920x1080", |r| r.large)];
+    let mut curves = Vec::new();
+    for (i, (name, size)) in sizes.into_iter().enumerate() {
+        let points: Vec<(f64, f64)> = rows
+            .iter()
+            .filter_map(|r| {
+                let (v, f) = (size(r.validation.as_ref()?)?, size(&r.fill)?);
+                Some((r.step as f64, v.d_mse / f.d_mse))
+            })
+            .collect();
+        if !points.is_empty() {
+            curves.push(Curve {
+                label: format!("network, {name}"),
+                colour: ivp_plot::colour(i),
+                points,
+                markers: true,
+            });
+        }
+    }
+    if !rows.is_empty() {
         curves.push(Curve {
-            label: format!("fill ({fill:.1})"),
-            colour: ivp_plot::colour(1),
-            points: vec![(0.0, fill), (max_step, fill)],
+            label: "fill".to_string(),
+            colour: ivp_plot::colour(2),
+            points: vec![(0.0, 1.0), (max_step, 1.0)],
             markers: false,
         });
     }
-    Panel { title: "Validation D-MSE on the fixed crops (lower is better)", y_label: "D-MSE (8-bit levels²)", curves }
+    Panel {
+        title: "Validation D-MSE on fixed whole frames, as a ratio to fill's (lower is better)",
+        y_label: "D-MSE / fill's",
+        curves,
+    }
 }
 
 /// The chart of `panel` on `area`, its legend on `legend`.
@@ -150,16 +172,19 @@ fn draw_panel(area: &Area<'_>, legend: &Area<'_>, panel: &Panel, max_step: f64) 
 mod tests {
     use super::*;
     use crate::metrics_csv::LossValues;
-    use crate::validation::ValidationScores;
 
     #[test]
     fn writes_a_png_with_and_without_validations() {
         let dir = tempfile::tempdir().unwrap();
-        let fill = ValidationScores { d_mse: 350.0, d_ssim: 0.79 };
+        let scores = |d_mse: f64| ValidationReport {
+            small: Some(ValidationScores { d_mse, d_ssim: 0.8 }),
+            large: Some(ValidationScores { d_mse: 1.5 * d_mse, d_ssim: 0.7 }),
+        };
+        let fill = scores(350.0);
         let row = |step: u64, total: f32, validation: Option<f64>| MetricsRow {
             step,
             loss: LossValues { mse: total / 5.0, ssim: total * 0.8, smooth: 0.0, guide: 0.0, total },
-            validation: validation.map(|d_mse| ValidationScores { d_mse, d_ssim: 0.8 }),
+            validation: validation.map(scores),
             fill,
             elapsed: std::time::Duration::from_secs(step),
         };

@@ -1,10 +1,8 @@
 //! Labelled contact sheets: several images side by side with a caption above each, for looking at
 //! samples, vectors and predictions.
 
-use ivp_core::{DepthMap, Image, RgbImage, VectorField};
+use ivp_core::{DepthMap, HoleMask, Image, PixelClass, RgbImage, VectorField};
 use ivp_data::samples::Sample;
-
-use crate::validation::hole_mask;
 
 const GLYPH: usize = 8;
 /// Captions are drawn with the 8x8 bitmap font scaled by this factor.
@@ -160,6 +158,27 @@ pub fn depth_to_rgb(depth: &DepthMap) -> RgbImage {
 /// A grey-level mask (e.g. the holes image: 255, 128, 0) as RGB.
 pub fn gray_to_rgb(width: usize, height: usize, values: &[u8]) -> RgbImage {
     Image::from_pixels(width, height, values.iter().map(|&g| [g as f32 / 255.0; 3]).collect())
+}
+
+/// The holes of a sample's warp: disocclusions from its mask, new regions where the warp left no
+/// depth and there is no disocclusion.
+fn hole_mask(sample: &Sample) -> HoleMask {
+    let classes = sample
+        .mask
+        .as_flat()
+        .iter()
+        .zip(sample.warped_depth.as_flat())
+        .map(|(&m, &z)| {
+            if m > 0.5 {
+                PixelClass::Disocclusion
+            } else if z > 0.0 {
+                PixelClass::Known
+            } else {
+                PixelClass::NewRegion
+            }
+        })
+        .collect();
+    HoleMask::from_classes(sample.size(), sample.size(), classes)
 }
 
 #[cfg(test)]

@@ -16,14 +16,12 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use anyhow::{bail, ensure, Context, Result};
-use candle_core::Tensor;
+use candle_core::backprop::GradStore;
+use candle_core::{Tensor, Var};
 use candle_nn::VarMap;
-use ivp_core::geometry::NearestKnown;
-use ivp_core::infill::rules::background_source;
 use ivp_core::nn::loss::{ivp_loss_normalised, LossCounts, LossWeights};
 use ivp_core::nn::model::{named_parameters, IvpNet, ModelConfig, NetInput, Variant};
 use ivp_core::nn::optim::{Adam, AdamConfig};
-use ivp_core::{DepthMap, Image, VectorField};
 use ivp_data::samples::{
     Batch, ClipSource, DatasetSource, SampleConfig, SampleGenerator, SampleStream, Split, StreamOptions,
     SyntheticSource,
@@ -32,15 +30,17 @@ use ivp_data::SceneParams;
 use serde::{Deserialize, Serialize};
 
 use crate::checkpoint::{
-    check_depth_head_mult, check_width_mult, load_checkpoint, restore_parameters, save_checkpoint, save_model,
+    check_depth_head_mult, check_width_mult, export_model, load_checkpoint, load_model, restore_parameters,
+    save_checkpoint,
 };
 use crate::distributed::{
     any_rank, batch_part, share_training_state, sum_gradients, sum_over_ranks, ProcessGroup, SingleProcess,
 };
+use crate::guide::{Guide, GuideChoice, GuideSource, GuideTarget};
 use crate::metrics_csv::{LossWindow, MetricsLog, MetricsRow};
 use crate::plot::write_loss_curve;
 use crate::progress::progress_bar;
-use crate::validation::{ValidationScores, ValidationSet};
+use crate::validation::{ValidationConfig, ValidationReport, ValidationSet};
 
 /// What [`training_step`] returns; it lives with the rows of `metrics.csv` that hold its means.
 pub use crate::metrics_csv::LossValues;
@@ -52,21 +52,22 @@ pub struct TrainConfig {
     /// A dataset folder of clips; `None` trains on generated scenes.
     pub data: Option<PathBuf>,
     /// `full`, `intensity`, `no-tg` or `no-depth`.
-    pub variant: String,
+    pub variant: Variant,
     pub width_mult: f64,
     /// Scales the depth head's widths (16, 32, 16); 1 is the paper's head, whatever `width_mult`.
     pub depth_head_mult: f64,
     pub steps: u64,
     pub batch: usize,
     pub crop: usize,
+    /// Generated clips are rendered at 320x240 times one of these, drawn per clip: the same
+    /// motion then opens holes this many times wider in pixels, as larger frames do
+    /// (`SyntheticSource::with_scales`). Ignored with `data`.
+    pub frame_scales: Vec<usize>,
     /// Steps during which a guide term pulls the vectors towards a target, fading linearly to
     /// nothing (0: the paper's losses alone from the start). See [`GuideSource`].
     pub guide_steps: u64,
-    /// The guide's target. `auto`: from what the variant reads, the depth-aware `fill` vectors
-    /// for the variants that read depth (`full`, `no-tg`), the temporal prior spread into the
-    /// holes for `no-depth`. `fill` or `prior` force one target (`prior` only for the variants
-    /// that read the prior; the default recipe before 2026-12-04 guided `full` by the prior).
-    pub guide: String,
+    /// The guide's target: `auto` (from what the variant reads), `fill` or `prior` ([`GuideChoice`]).
+    pub guide: GuideChoice,
     /// Peak learning rate of Adam.
     pub lr: f64,
     /// Steps of linear warm-up from 0 to `lr`.
@@ -79,14 +80,22 @@ pub struct TrainConfig {
     pub log_every: u64,
     /// Steps between two validations (0: only at the end).
     pub validate_every: u64,
-    /// Samples in the fixed validation set.
-    pub validation_samples: usize,
+    /// The seed of the generated validation clips: keep it fixed to compare runs, whatever their
+    /// `seed` (validation.rs).
+    pub validation_seed: u64,
+    /// Validation clips of 12 frames at 320x240 (3 targets each).
+    pub validation_clips: usize,
+    /// Validation clips of 6 frames at 1920x1080 (3 targets each).
+    pub validation_hd_clips: usize,
     /// Iterations of the test-time infilling in validation (ALGORITHMS.md §6.5).
     pub iterations: usize,
     /// Steps between two checkpoints.
     pub checkpoint_every: u64,
     /// Checkpoints kept in `checkpoints/` (older ones are deleted).
     pub keep_checkpoints: usize,
+    /// The model file is the mean of the parameters of this many last checkpoints (the last step's
+    /// among them; 1: the last step alone). Must not exceed `keep_checkpoints`.
+    pub average_checkpoints: usize,
     /// Background threads that make batches.
     pub data_workers: usize,
 }
@@ -95,24 +104,28 @@ impl Default for TrainConfig {
     fn default() -> Self {
         Self {
             data: None,
-            variant: Variant::Full.as_str().to_string(),
+            variant: Variant::Full,
             width_mult: 0.25,
             depth_head_mult: 1.0,
             steps: 5000,
             batch: 16,
             crop: 64,
+            frame_scales: vec![1],
             guide_steps: 500,
-            guide: "auto".to_string(),
+            guide: GuideChoice::Auto,
             lr: 1e-3,
             warmup_steps: 100,
             final_lr_fraction: 0.1,
             seed: 0,
             log_every: 25,
             validate_every: 250,
-            validation_samples: 192,
+            validation_seed: 20_261_204,
+            validation_clips: 8,
+            validation_hd_clips: 2,
             iterations: ivp_core::infill::DEFAULT_ITERATIONS,
             checkpoint_every: 250,
             keep_checkpoints: 3,
+            average_checkpoints: 1,
             data_workers: 1,
         }
     }
@@ -131,8 +144,7 @@ impl TrainConfig {
     }
 
     pub fn model(&self) -> Result<ModelConfig> {
-        let variant: Variant = self.variant.parse().map_err(anyhow::Error::msg)?;
-        Ok(ModelConfig::new(variant, self.width_mult).with_depth_head_mult(self.depth_head_mult))
+        Ok(ModelConfig::new(self.variant, self.width_mult).with_depth_head_mult(self.depth_head_mult))
     }
 
     pub fn validate(&self) -> Result<()> {
@@ -142,6 +154,11 @@ impl TrainConfig {
         ensure!(self.steps > 0, "steps must be at least 1");
         ensure!(self.batch > 0, "batch must be at least 1");
         ensure!(self.crop >= 16, "crop must be at least 16, got {}", self.crop);
+        ensure!(
+            !self.frame_scales.is_empty() && self.frame_scales.iter().all(|s| (1..=8).contains(s)),
+            "frame_scales must be whole numbers from 1 to 8, got {:?}",
+            self.frame_scales
+        );
         ensure!(self.lr > 0.0 && self.lr.is_finite(), "lr must be a positive number, got {}", self.lr);
         ensure!(
             (0.0..=1.0).contains(&self.final_lr_fraction),
@@ -150,22 +167,19 @@ impl TrainConfig {
         );
         ensure!(self.log_every > 0 && self.checkpoint_every > 0, "log_every and checkpoint_every must be at least 1");
         ensure!(self.keep_checkpoints > 0, "keep_checkpoints must be at least 1");
+        ensure!(
+            (1..=self.keep_checkpoints).contains(&self.average_checkpoints),
+            "average_checkpoints must be from 1 to keep_checkpoints ({}), got {}",
+            self.keep_checkpoints,
+            self.average_checkpoints
+        );
         ensure!(self.iterations > 0, "iterations must be at least 1");
         Ok(())
     }
 
     /// The target of the guide term (`None` for the variant without vectors).
     pub fn guide_source(&self) -> Result<Option<GuideSource>> {
-        let variant = self.model()?.variant;
-        match self.guide.as_str() {
-            "auto" => Ok(GuideSource::of(variant)),
-            "fill" => Ok(GuideSource::of(variant).map(|_| GuideSource::DepthFill)),
-            "prior" if variant.predicts_vectors() && !variant.reads_temporal_prior() => {
-                bail!("guide = \"prior\": variant {variant} does not read the temporal prior")
-            }
-            "prior" => Ok(GuideSource::of(variant).map(|_| GuideSource::TemporalPrior)),
-            other => bail!("guide must be `auto`, `fill` or `prior`, got `{other}`"),
-        }
+        self.guide.source_for(self.variant)
     }
 
     /// The guide term of step `step`: its target, weighted 1 fading linearly to 0 at `guide_steps`.
@@ -193,6 +207,14 @@ impl TrainConfig {
         self.lr * (self.final_lr_fraction + (1.0 - self.final_lr_fraction) * cosine)
     }
 
+    pub fn validation_config(&self) -> ValidationConfig {
+        ValidationConfig {
+            seed: self.validation_seed,
+            clips: self.validation_clips,
+            hd_clips: self.validation_hd_clips,
+        }
+    }
+
     fn sample_config(&self) -> SampleConfig {
         SampleConfig { seed: self.seed, crop: self.crop, batch_size: self.batch, ..SampleConfig::default() }
     }
@@ -204,7 +226,8 @@ impl TrainConfig {
             None => {
                 let width = (2 * self.crop).max(320);
                 let height = (3 * self.crop / 2).max(240);
-                Arc::new(SyntheticSource::new(SceneParams { width, height, ..SceneParams::default() }))
+                let params = SceneParams { width, height, ..SceneParams::default() };
+                Arc::new(SyntheticSource::new(params).with_scales(&self.frame_scales))
             }
         })
     }
@@ -231,8 +254,8 @@ pub struct TrainSummary {
     pub steps_run: u64,
     pub stopped_early: bool,
     pub elapsed: Duration,
-    pub last_validation: Option<ValidationScores>,
-    pub fill: Option<ValidationScores>,
+    pub last_validation: Option<ValidationReport>,
+    pub fill: Option<ValidationReport>,
     pub model_path: Option<PathBuf>,
 }
 
@@ -267,8 +290,8 @@ pub fn train_on(
     let config_json = serde_json::to_string(config)?;
 
     let source = config.source()?;
-    let validation = ValidationSet::new(source.clone(), config.sample_config(), config.validation_samples, group)?;
-    let fill = validation.score_fill(group);
+    let validation = ValidationSet::new(&config.validation_config());
+    let fill = validation.score_fill(group)?;
     let generator = SampleGenerator::new(source, config.sample_config(), Split::Train)?.with_batch_part(batch_part)?;
     let mut stream = SampleStream::start(
         Arc::new(generator),
@@ -311,11 +334,9 @@ pub fn train_on(
         if step % config.log_every == 0 || validate_now {
             let scores = validate_now.then(|| validation.score_network(&net, config.iterations, group)).transpose()?;
             if let Some(s) = &scores {
-                tracing::info!(step, d_mse = s.d_mse, d_ssim = s.d_ssim, "validation");
-                bar.println(format!(
-                    "step {step}: validation D-MSE {:.1} D-SSIM {:.4} (fill {:.1} / {:.4})",
-                    s.d_mse, s.d_ssim, fill.d_mse, fill.d_ssim
-                ));
+                let line = s.describe(&fill);
+                tracing::info!(step, "validation: {line}");
+                bar.println(format!("step {step}: validation {line}"));
                 last_validation = Some(*s);
             }
             if let Some(run) = &mut run {
@@ -340,11 +361,18 @@ pub fn train_on(
     bar.finish_and_clear();
     drop(stream);
     let model_path = (!stopped_early).then(|| run_dir.join("model.safetensors"));
-    if let Some(run) = &run {
-        write_loss_curve(&run_dir.join("loss.png"), run.log.rows())?;
+    if let Some(run) = &mut run {
         if let Some(path) = &model_path {
-            save_model(path, &varmap, &model_config, Some(step))?;
+            if let Some(scores) = write_model(config, &checkpoints, path, &validation, &mut run.log)? {
+                bar.println(format!(
+                    "model = mean of the last {} checkpoints: validation {}",
+                    config.average_checkpoints,
+                    scores.describe(&fill)
+                ));
+                last_validation = Some(scores);
+            }
         }
+        write_loss_curve(&run_dir.join("loss.png"), run.log.rows())?;
     }
     Ok(TrainSummary {
         steps_done: step,
@@ -355,6 +383,38 @@ pub fn train_on(
         fill: Some(fill),
         model_path,
     })
+}
+
+/// Writes the model file of a finished run: the last step's parameters (in its last checkpoint),
+/// or the mean of the last `average_checkpoints` checkpoints, which is then validated too (its
+/// scores are returned and logged as a row of the last step; `None` for the last step alone).
+fn write_model(
+    config: &TrainConfig,
+    checkpoints: &Path,
+    path: &Path,
+    validation: &ValidationSet,
+    log: &mut MetricsLog,
+) -> Result<Option<ValidationReport>> {
+    let files = checkpoint_files(checkpoints)?;
+    let last = &files[files.len().saturating_sub(config.average_checkpoints)..];
+    ensure!(
+        last.len() == config.average_checkpoints,
+        "{}: {} checkpoints to average, found {}",
+        checkpoints.display(),
+        config.average_checkpoints,
+        last.len()
+    );
+    export_model(last, path)?;
+    if config.average_checkpoints == 1 {
+        return Ok(None);
+    }
+    let (net, _) = load_model(path)?;
+    let scores = validation.score_network(&net, config.iterations, &SingleProcess)?;
+    if let Some(row) = log.last_mut() {
+        row.validation = Some(scores);
+    }
+    log.save()?;
+    Ok(Some(scores))
 }
 
 /// What rank 0 finds in (or starts) the run folder.
@@ -421,6 +481,23 @@ pub fn training_step(
     guide: Guide,
     group: &dyn ProcessGroup,
 ) -> Result<LossValues> {
+    let (values, grads) = batch_gradients(net, optimizer.parameters(), input, truth, weights, guide, group)?;
+    optimizer.step(&grads)?;
+    Ok(values)
+}
+
+/// The losses of the whole batch and the gradients of its loss (summed over the ranks) with
+/// respect to `params`: everything of [`training_step`] but the update. Data parallelism is right
+/// when these gradients equal one process's on the whole batch, to rounding.
+pub fn batch_gradients(
+    net: &IvpNet,
+    params: &[(String, Var)],
+    input: &NetInput<'_>,
+    truth: &Tensor,
+    weights: &LossWeights,
+    guide: Guide,
+    group: &dyn ProcessGroup,
+) -> Result<(LossValues, GradStore)> {
     let guide_weight = guide.weight;
     let source = guide.source.filter(|_| guide_weight > 0.0);
     let guide_target = source.map(|source| GuideTarget::new(source, input)).transpose()?;
@@ -453,158 +530,8 @@ pub fn training_step(
         bail!("the loss is not finite ({values:?})");
     }
     let mut grads = total.backward()?;
-    sum_gradients(group, &mut grads, optimizer.parameters())?;
-    optimizer.step(&grads)?;
-    Ok(values)
-}
-
-/// Radius of the window over which [`guide_loss`] spreads the prior into the holes.
-pub const GUIDE_RADIUS: usize = 10;
-
-/// Where the guide term of the first steps takes its target vectors from.
-///
-/// Why a guide: the paper's losses see the vectors only through the bilinear read of the warped
-/// frame, whose holes are black. A vector that reads the foreground next to a sliver lowers the
-/// loss compared with reading black, and a vector that lands inside a wide hole gets no gradient
-/// at all, so an unguided network learns the background side only slowly (`no-tg` without a
-/// guide validated at 3x `fill`'s D-MSE after 5000 steps). Pulling the vectors towards a
-/// reasonable field first gives training a start; the guide then fades out and the paper's
-/// losses refine the vectors. The target is built only from inputs the variant reads, so an
-/// ablation never learns through the loss from what it removes.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum GuideSource {
-    /// The temporal prior spread into the holes ([`guide_loss`]); for the variant that reads the
-    /// prior but not depth (`no-depth`).
-    TemporalPrior,
-    /// The depth-aware `fill` vectors of the warped depth ([`fill_guide_loss`]), for the variants
-    /// that read depth. Over three seeds it trains `full` steadier and better than the prior
-    /// (results/recipe/README.md).
-    DepthFill,
-}
-
-/// The guide term of one step: its target (`None`: no guide) and its weight.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct Guide {
-    pub source: Option<GuideSource>,
-    pub weight: f64,
-}
-
-impl Guide {
-    /// No guide term.
-    pub const NONE: Guide = Guide { source: None, weight: 0.0 };
-
-    /// The guide of `variant` ([`GuideSource::of`]) at `weight`.
-    pub fn of(variant: Variant, weight: f64) -> Self {
-        Self { source: GuideSource::of(variant), weight }
-    }
-}
-
-impl GuideSource {
-    /// The guide of `variant`, from its own inputs only: the `fill` vectors if it reads depth,
-    /// else the spread prior; `None` for the variant without vectors (`intensity`).
-    pub fn of(variant: Variant) -> Option<Self> {
-        if !variant.predicts_vectors() {
-            None
-        } else if variant.reads_depth() {
-            Some(Self::DepthFill)
-        } else {
-            Some(Self::TemporalPrior)
-        }
-    }
-}
-
-/// The guide term towards the temporal prior: the mean absolute difference, over the
-/// disocclusion pixels, between the vectors and the prior spread into the holes (each pixel the
-/// mean of the non-zero prior vectors within [`GUIDE_RADIUS`]); pixels without any prior nearby
-/// are left out. The spread prior alone, used as vectors at test time, beats `fill` on
-/// data/blender-dev.
-pub fn guide_loss(vectors: &Tensor, prior: &Tensor, mask: &Tensor) -> Result<Tensor> {
-    let target = GuideTarget::spread_prior(prior, mask)?;
-    target.loss(vectors, target.count)
-}
-
-/// The guide term towards `fill`: the mean absolute difference, over the disocclusion pixels,
-/// between the vectors and the vector from each pixel to the pixel the `fill` rule copies (of
-/// the nearest known pixels in the four directions, the one with the largest warped depth).
-/// Known pixels are those with a non-zero warped depth; a hole pixel with no known pixel in any
-/// direction is left out.
-pub fn fill_guide_loss(vectors: &Tensor, warped_depth: &Tensor, mask: &Tensor) -> Result<Tensor> {
-    let target = GuideTarget::fill_vectors(warped_depth, mask)?;
-    target.loss(vectors, target.count)
-}
-
-/// What a guide term compares the vectors with: target vectors, and the pixels they apply to.
-struct GuideTarget {
-    /// The target vectors: (B, 2, H, W).
-    vectors: Tensor,
-    /// 1 at the disocclusion pixels with a target: (B, 1, H, W).
-    weight: Tensor,
-    /// The number of such pixels.
-    count: f64,
-}
-
-impl GuideTarget {
-    fn new(source: GuideSource, input: &NetInput<'_>) -> Result<Self> {
-        match source {
-            GuideSource::TemporalPrior => Self::spread_prior(input.prior, input.mask),
-            GuideSource::DepthFill => Self::fill_vectors(input.warped_depth, input.mask),
-        }
-    }
-
-    fn spread_prior(prior: &Tensor, mask: &Tensor) -> Result<Self> {
-        Self::per_sample(prior, mask, |i| {
-            let field: VectorField = ivp_core::nn::tensor::from_tensor(&prior.narrow(0, i, 1)?)?;
-            Ok(ivp_core::prior::mean_of_nonzero_vectors(&field, GUIDE_RADIUS))
-        })
-    }
-
-    fn fill_vectors(warped_depth: &Tensor, mask: &Tensor) -> Result<Self> {
-        Self::per_sample(warped_depth, mask, |i| {
-            let depth: DepthMap = ivp_core::nn::tensor::from_tensor(&warped_depth.narrow(0, i, 1)?)?;
-            let hole: Image<1> = ivp_core::nn::tensor::from_tensor(&mask.narrow(0, i, 1)?)?;
-            let (w, h) = (depth.width(), depth.height());
-            let known: Vec<bool> = depth.pixels().iter().map(|&[z]| z != 0.0 && !z.is_nan()).collect();
-            let nearest = NearestKnown::new(w, h, &known);
-            let mut field = VectorField::zeros(w, h);
-            for v in 0..h {
-                for u in 0..w {
-                    if hole.at(u, v) == 0.0 {
-                        continue;
-                    }
-                    if let Some((su, sv)) = background_source(&nearest, &depth, (u, v)) {
-                        field.set(u, v, [su as f32 - u as f32, sv as f32 - v as f32]);
-                    }
-                }
-            }
-            Ok(field)
-        })
-    }
-
-    /// Stacks the target field `field_of(i)` of each sample `i` of a (B, C, H, W) `like`; a
-    /// pixel is guided where it is a disocclusion and its target is not zero.
-    fn per_sample(like: &Tensor, mask: &Tensor, field_of: impl Fn(usize) -> Result<VectorField>) -> Result<Self> {
-        let (b, _, h, w) = like.dims4()?;
-        let mut target = Vec::with_capacity(b * 2 * h * w);
-        let mut has_target = Vec::with_capacity(b * h * w);
-        for i in 0..b {
-            let field = field_of(i)?;
-            for c in 0..2 {
-                target.extend(field.pixels().iter().map(|p| p[c]));
-            }
-            has_target.extend(field.pixels().iter().map(|p| f32::from(p[0] != 0.0 || p[1] != 0.0)));
-        }
-        let vectors = Tensor::from_vec(target, (b, 2, h, w), like.device())?;
-        let weight = (Tensor::from_vec(has_target, (b, 1, h, w), like.device())? * mask)?;
-        // An exact count: a sum of at most 2^24 ones in f32.
-        let count = weight.sum_all()?.to_scalar::<f32>()? as f64;
-        Ok(Self { vectors, weight, count })
-    }
-
-    /// The guide term of `vectors`, divided by `count` guided pixels (these, or the whole batch's).
-    fn loss(&self, vectors: &Tensor, count: f64) -> Result<Tensor> {
-        let difference = (vectors - &self.vectors)?.abs()?.broadcast_mul(&self.weight)?.sum_all()?;
-        Ok((difference / (2.0 * count.max(1.0)))?)
-    }
+    sum_gradients(group, &mut grads, params)?;
+    Ok((values, grads))
 }
 
 pub fn batch_input(batch: &Batch) -> NetInput<'_> {
@@ -656,7 +583,7 @@ pub fn seeded_network(config: &TrainConfig) -> Result<(IvpNet, VarMap)> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use candle_core::{Device, Var};
+    use candle_core::Device;
 
     fn tensor(v: Vec<f32>, shape: (usize, usize, usize, usize)) -> Tensor {
         Tensor::from_vec(v, shape, &Device::Cpu).unwrap()
@@ -675,39 +602,82 @@ mod tests {
             warmup_steps: 0,
             final_lr_fraction: 1.0,
             guide_steps: 0,
-            validation_samples: 64,
             ..TrainConfig::default()
         };
         assert_eq!(paper, expected);
     }
 
-    #[test]
-    fn ranks_with_parts_of_a_batch_train_like_one_process_with_all_of_it() {
-        use crate::distributed::tests::ThreadGroup;
-        // A batch of 3 random crops with holes and a prior: 2 guided steps and 1 unguided, by one
-        // process and by 2 ranks (crops [0, 2) and [2, 3)).
+    /// A batch of 3 random 16x16 crops with holes and a prior: prior, depth, mask, warped, truth.
+    fn toy_batch() -> [Tensor; 5] {
         let (b, h, w) = (3, 16, 16);
         let values = |c: usize, seed: usize| -> Vec<f32> {
             (0..b * c * h * w).map(|i| ((i * 7919 + seed * 104_729) % 1000) as f32 / 1000.0).collect()
         };
-        let mask: Vec<f32> = (0..b * h * w).map(|i| f32::from((i % (h * w)) / 16 % 5 == 2)).collect();
+        // Crops with different numbers of hole pixels, so that a part's own counts are not the batch's.
+        let mask: Vec<f32> = (0..b * h * w).map(|i| f32::from((i % (h * w)) / 16 % (5 + i / (h * w)) == 2)).collect();
         let prior: Vec<f32> =
             values(2, 1).iter().zip((0..).map(|i| mask[i % (b * h * w)])).map(|(v, m)| 4.0 * v * (1.0 - m)).collect();
-        let batch = [prior, values(1, 2), mask, values(3, 3), values(3, 4)].map(|v| {
+        [prior, values(1, 2), mask, values(3, 3), values(3, 4)].map(|v| {
             let c = v.len() / (b * h * w);
             tensor(v, (b, c, h, w))
-        });
+        })
+    }
+
+    /// Crops `part` of a batch of [`toy_batch`].
+    fn part_of(batch: &[Tensor; 5], part: &std::ops::Range<usize>) -> [Tensor; 5] {
+        batch.clone().map(|t| t.narrow(0, part.start, part.len()).unwrap())
+    }
+
+    /// The network's input from prior, depth, mask and warped frame of a [`toy_batch`].
+    fn toy_input(t: &[Tensor; 5]) -> NetInput<'_> {
+        NetInput { prior: &t[0], warped_depth: &t[1], mask: &t[2], warped: &t[3], last: None, last_warped: None }
+    }
+
+    #[test]
+    fn the_ranks_summed_gradient_is_one_process_gradient_of_the_whole_batch() {
+        use crate::distributed::tests::ThreadGroup;
+        let batch = toy_batch();
+        // The gradients of crops `part` of the batch, by `group`, one vector per parameter.
+        let gradients = |group: &dyn ProcessGroup, part: std::ops::Range<usize>| -> Vec<Vec<f32>> {
+            let t = part_of(&batch, &part);
+            let (input, truth) = (toy_input(&t), &t[4]);
+            let (net, varmap) = IvpNet::seeded(ModelConfig::new(Variant::Full, 0.125), 5).unwrap();
+            let params = named_parameters(&varmap);
+            let guide = Guide::of(Variant::Full, 0.5);
+            let (_, grads) =
+                batch_gradients(&net, &params, &input, truth, &LossWeights::default(), guide, group).unwrap();
+            params.iter().map(|(_, v)| grads.get(v).unwrap().flatten_all().unwrap().to_vec1().unwrap()).collect()
+        };
+        // Equal to rounding: only the order of the additions differs.
+        let agree = |a: &[Vec<f32>], b: &[Vec<f32>]| {
+            let largest = a.iter().flatten().fold(0f32, |m, v| m.max(v.abs()));
+            let worst = a.iter().flatten().zip(b.iter().flatten()).fold(0f32, |m, (x, y)| m.max((x - y).abs()));
+            worst <= 1e-5 * largest
+        };
+        let whole = gradients(&SingleProcess, 0..3);
+        let ranks = ThreadGroup::run(2, |group| gradients(group, [0..2, 2..3][group.rank()].clone()));
+        assert!(ranks[0] == ranks[1], "the ranks hold different gradients");
+        assert!(agree(&whole, &ranks[0]), "the all-reduced gradient differs from one process's");
+
+        // Negative controls: the ways data parallelism goes wrong must fail the same comparison.
+        let dropped = gradients(&SingleProcess, 0..2);
+        assert!(!agree(&whole, &dropped), "a dropped rank goes unnoticed");
+        let (first, second) = (gradients(&SingleProcess, 0..2), gradients(&SingleProcess, 2..3));
+        let unscaled: Vec<Vec<f32>> =
+            first.iter().zip(&second).map(|(a, b)| a.iter().zip(b).map(|(x, y)| x + y).collect()).collect();
+        assert!(!agree(&whole, &unscaled), "ranks that divide by their own counts go unnoticed");
+        let doubled: Vec<Vec<f32>> = whole.iter().map(|g| g.iter().map(|x| 2.0 * x).collect()).collect();
+        assert!(!agree(&whole, &doubled), "a gradient scaled by a constant goes unnoticed");
+    }
+
+    #[test]
+    fn ranks_with_parts_of_a_batch_train_like_one_process_with_all_of_it() {
+        use crate::distributed::tests::ThreadGroup;
+        // 2 guided steps and 1 unguided, by one process and by 2 ranks (crops [0, 2) and [2, 3)).
+        let batch = toy_batch();
         let train = |group: &dyn ProcessGroup, part: std::ops::Range<usize>| {
-            let t = |i: usize| batch[i].narrow(0, part.start, part.len()).unwrap();
-            let (prior, depth, mask, warped, truth) = (t(0), t(1), t(2), t(3), t(4));
-            let input = NetInput {
-                prior: &prior,
-                warped_depth: &depth,
-                mask: &mask,
-                warped: &warped,
-                last: None,
-                last_warped: None,
-            };
+            let t = part_of(&batch, &part);
+            let (input, truth) = (toy_input(&t), &t[4]);
             let (net, varmap) = IvpNet::seeded(ModelConfig::new(Variant::Full, 0.125), 5).unwrap();
             let mut optimizer =
                 Adam::new(named_parameters(&varmap), AdamConfig { lr: 1e-3, ..Default::default() }).unwrap();
@@ -715,7 +685,7 @@ mod tests {
                 .iter()
                 .map(|&guide| {
                     let guide = Guide::of(Variant::Full, guide);
-                    training_step(&net, &mut optimizer, &input, &truth, &LossWeights::default(), guide, group).unwrap()
+                    training_step(&net, &mut optimizer, &input, truth, &LossWeights::default(), guide, group).unwrap()
                 })
                 .collect();
             let params: Vec<Vec<f32>> = named_parameters(&varmap)
@@ -785,11 +755,11 @@ mod tests {
 
     #[test]
     fn the_guide_can_be_the_fill_vectors_for_every_vector_variant() {
-        let config = |variant: &str, guide: &str| TrainConfig {
-            variant: variant.to_string(),
-            guide: guide.to_string(),
-            ..TrainConfig::default()
+        let config = |variant: &str, guide: &str| {
+            let text = format!("variant = \"{variant}\"\nguide = \"{guide}\"");
+            toml::from_str::<TrainConfig>(&text).map_err(|e| e.to_string())
         };
+        let config = |variant: &str, guide: &str| config(variant, guide).unwrap();
         assert_eq!(config("full", "auto").guide_source().unwrap(), Some(GuideSource::DepthFill));
         assert_eq!(config("no-depth", "auto").guide_source().unwrap(), Some(GuideSource::TemporalPrior));
         assert_eq!(config("full", "prior").guide_source().unwrap(), Some(GuideSource::TemporalPrior));
@@ -798,61 +768,14 @@ mod tests {
         assert_eq!(config("intensity", "prior").guide_source().unwrap(), None);
         let bad = config("no-tg", "prior").validate().unwrap_err().to_string();
         assert!(bad.contains("no-tg does not read the temporal prior"), "{bad}");
-        let bad = config("full", "spread").validate().unwrap_err().to_string();
-        assert!(bad.contains("`auto`, `fill` or `prior`"), "{bad}");
+        let text = "guide = \"spread\"";
+        let bad = toml::from_str::<TrainConfig>(text).unwrap_err().to_string();
+        assert!(bad.contains("auto") && bad.contains("fill") && bad.contains("prior"), "{bad}");
         let guide = config("full", "fill").guide_at(0).unwrap();
         assert_eq!(guide, Guide { source: Some(GuideSource::DepthFill), weight: 1.0 });
         // The default recipe's file form is unchanged: `guide` defaults to `auto` when absent.
         let parsed: TrainConfig = toml::from_str("steps = 10").unwrap();
-        assert_eq!(parsed.guide, "auto");
-    }
-
-    #[test]
-    fn fill_guide_points_to_the_farther_side_of_a_hole() {
-        // A 1 x 9 strip: foreground (depth 1) at 0..3, a hole at 3..6, background (depth 5) at 6..9.
-        let (w, h) = (9, 1);
-        let depth: Vec<f32> = (0..w).map(|x| [1.0, 0.0, 5.0][x / 3]).collect();
-        let mask: Vec<f32> = (0..w).map(|x| f32::from((3..6).contains(&x))).collect();
-        let (depth, mask) = (tensor(depth, (1, 1, h, w)), tensor(mask, (1, 1, h, w)));
-        // Hole pixel x copies pixel 6, the nearest background pixel: vector (6 - x, 0).
-        let on_target =
-            tensor([vec![0.0, 0.0, 0.0, 3.0, 2.0, 1.0, 0.0, 0.0, 0.0], vec![0.0; 9]].concat(), (1, 2, h, w));
-        assert_eq!(fill_guide_loss(&on_target, &depth, &mask).unwrap().to_scalar::<f32>().unwrap(), 0.0);
-        let zeros = Var::from_tensor(&on_target.zeros_like().unwrap()).unwrap();
-        let loss = fill_guide_loss(&zeros, &depth, &mask).unwrap();
-        // (3 + 2 + 1) over 2 components and 3 pixels.
-        assert_eq!(loss.to_scalar::<f32>().unwrap(), 1.0);
-        let grad = loss.backward().unwrap().get(&zeros).unwrap().flatten_all().unwrap().to_vec1::<f32>().unwrap();
-        assert!(grad[3] < 0.0 && grad[0] == 0.0 && grad[7] == 0.0, "moves hole vectors only: {grad:?}");
-        // All hole (nothing known) or no hole: exactly 0, never NaN.
-        let all_hole = fill_guide_loss(&zeros, &depth.zeros_like().unwrap(), &mask).unwrap();
-        assert_eq!(all_hole.to_scalar::<f32>().unwrap(), 0.0);
-        let none = fill_guide_loss(&zeros, &depth, &mask.zeros_like().unwrap()).unwrap();
-        assert_eq!(none.to_scalar::<f32>().unwrap(), 0.0);
-    }
-
-    #[test]
-    fn guide_pulls_hole_vectors_towards_the_spread_prior() {
-        // A 1 x 9 strip: prior (2, 0) at the known pixels 0..3, a hole at 4..6, no prior at 7..9.
-        let (w, h) = (9, 1);
-        let mut prior = vec![0f32; 2 * w];
-        prior[..3].fill(2.0);
-        let mask: Vec<f32> = (0..w).map(|x| f32::from((4..7).contains(&x))).collect();
-        let (prior, mask) = (tensor(prior, (1, 2, h, w)), tensor(mask, (1, 1, h, w)));
-        // Within GUIDE_RADIUS of the prior, every hole pixel's target is (2, 0).
-        let on_target = tensor([vec![0.0; 4], vec![2.0; 3], vec![0.0; 2], vec![0.0; 9]].concat(), (1, 2, h, w));
-        assert_eq!(guide_loss(&on_target, &prior, &mask).unwrap().to_scalar::<f32>().unwrap(), 0.0);
-        let zeros = Var::from_tensor(&on_target.zeros_like().unwrap()).unwrap();
-        let loss = guide_loss(&zeros, &prior, &mask).unwrap();
-        // |0 - 2| + |0 - 0| over 2 components, averaged over the 3 hole pixels.
-        assert_eq!(loss.to_scalar::<f32>().unwrap(), 1.0);
-        let grad = loss.backward().unwrap().get(&zeros).unwrap().flatten_all().unwrap().to_vec1::<f32>().unwrap();
-        assert!(grad[4] < 0.0 && grad[0] == 0.0, "moves hole vectors only, towards the target: {grad:?}");
-        // No hole, or no prior anywhere: exactly 0, never NaN.
-        let none = guide_loss(&zeros, &prior, &mask.zeros_like().unwrap()).unwrap();
-        assert_eq!(none.to_scalar::<f32>().unwrap(), 0.0);
-        let no_prior = guide_loss(&zeros, &prior.zeros_like().unwrap(), &mask).unwrap();
-        assert_eq!(no_prior.to_scalar::<f32>().unwrap(), 0.0);
+        assert_eq!(parsed.guide, GuideChoice::Auto);
     }
 
     #[test]
@@ -877,6 +800,6 @@ mod tests {
             (10, "no-tg", TrainConfig::default().batch)
         );
         assert!(toml::from_str::<TrainConfig>("stpes = 10").is_err(), "a misspelt field is an error");
-        assert!(TrainConfig { variant: "big".into(), ..TrainConfig::default() }.validate().is_err());
+        assert!(toml::from_str::<TrainConfig>("variant = \"big\"").is_err(), "an unknown variant is an error");
     }
 }

@@ -307,7 +307,7 @@ fn train_export_eval_infer_and_upsample_from_the_command_line() {
     let config = dir.path().join("tiny.toml");
     std::fs::write(
         &config,
-        "width_mult = 0.125\nsteps = 3\nbatch = 2\ncrop = 32\nvalidation_samples = 2\nlog_every = 1\n",
+        "width_mult = 0.125\nsteps = 3\nbatch = 2\ncrop = 32\nvalidation_clips = 1\nvalidation_hd_clips = 0\nlog_every = 1\n",
     )
     .unwrap();
     let stdout = ok(&["train", "--synthetic", "--config", s(&config), "--steps", "2", "--out", s(&run)]);
@@ -319,7 +319,18 @@ fn train_export_eval_infer_and_upsample_from_the_command_line() {
     let exported = dir.path().join("exported.safetensors");
     let ckpt = run.join("checkpoints/step_00000002.safetensors");
     ok(&["export", "--checkpoint", s(&ckpt), "--out", s(&exported)]);
-    assert_eq!(std::fs::read(&exported).unwrap().len(), std::fs::read(&model).unwrap().len());
+    // The export of the last checkpoint holds the model's tensors, each with its values.
+    let tensors = |path: &std::path::Path| -> Vec<(String, Vec<usize>, Vec<f32>)> {
+        let mut all: Vec<_> = candle_core::safetensors::load(path, &candle_core::Device::Cpu)
+            .unwrap()
+            .into_iter()
+            .map(|(name, t)| (name, t.dims().to_vec(), t.flatten_all().unwrap().to_vec1().unwrap()))
+            .collect();
+        all.sort_by(|a, b| a.0.cmp(&b.0));
+        all
+    };
+    let (from_export, from_model) = (tensors(&exported), tensors(&model));
+    assert!(from_export.len() > 10 && from_export == from_model, "the export differs from the model");
 
     let clip = blender_dev().join("clip_000");
     let table = ok(&[
@@ -354,11 +365,30 @@ fn train_export_eval_infer_and_upsample_from_the_command_line() {
     let stdout = ok(&["upsample", "--clip", s(&clip), "--model", s(&model), "--out", s(&up)]);
     assert!(stdout.contains("12 frames (6 predicted"), "{stdout}");
     let clip_frames = Clip::open(&clip).unwrap();
+    let mean_abs_error = |a: &ivp_core::RgbImage, b: &ivp_core::RgbImage| -> f64 {
+        let sum: f64 = a
+            .pixels()
+            .iter()
+            .zip(b.pixels())
+            .map(|(p, q)| (0..3).map(|c| (p[c] - q[c]).abs() as f64).sum::<f64>())
+            .sum();
+        sum / (3 * a.len()) as f64
+    };
     for t in 0..12 {
         let frame = read_rgb(up.join(format!("frames/{t:04}.png"))).unwrap();
+        let truth = clip_frames.load_frame(t).unwrap().image;
         if t % 2 == 0 {
             // Rendered frames pass through unchanged.
-            assert_eq!(frame.pixels(), clip_frames.load_frame(t).unwrap().image.quantized_to_8bit().pixels());
+            assert_eq!(frame.pixels(), truth.quantized_to_8bit().pixels());
+        } else {
+            // A predicted frame is the frame before it moved into the new view: nearer the truth
+            // than repeating that frame, though not the truth itself.
+            let repeated = clip_frames.load_frame(t - 1).unwrap().image;
+            let (predicted, copied) = (mean_abs_error(&frame, &truth), mean_abs_error(&repeated, &truth));
+            assert!(
+                predicted < 0.5 * copied && predicted > 0.0,
+                "frame {t}: error {predicted} against {copied} for a copy"
+            );
         }
     }
     let gif = std::fs::read(up.join("preview.gif")).unwrap();
@@ -367,7 +397,24 @@ fn train_export_eval_infer_and_upsample_from_the_command_line() {
     // Dense and sparse inference of one target, and a tile shape that is refused with a reason.
     let dense = dir.path().join("dense");
     ok(&["infer", "--clip", s(&clip), "--model", s(&model), "--target", "6", "--dense", "--out", s(&dense)]);
-    assert_eq!(read_rgb(dense.join("holes.png")).unwrap(), read_rgb(infer.join("holes.png")).unwrap());
+    // Sparse and dense predictions agree: the tiles hold every hole and the context the network
+    // reads, so few hole pixels change (PERFORMANCE.md: vectors within 0.5 px at 100% of the
+    // hole pixels at 320x240, D-MSE within 0.2%).
+    let holes = read_rgb(infer.join("holes.png")).unwrap();
+    let (sparse_frame, dense_frame) =
+        (read_rgb(infer.join("infilled.png")).unwrap(), read_rgb(dense.join("infilled.png")).unwrap());
+    let hole_pixels: Vec<usize> = (0..holes.len()).filter(|&i| holes.pixels()[i][0] == 1.0).collect();
+    let differing = hole_pixels.iter().filter(|&&i| sparse_frame.pixels()[i] != dense_frame.pixels()[i]).count();
+    assert!(hole_pixels.len() > 50, "{} hole pixels", hole_pixels.len());
+    assert!(
+        (differing as f64) <= 0.01 * hole_pixels.len() as f64,
+        "{differing} of {} hole pixels differ between sparse and dense inference",
+        hole_pixels.len()
+    );
+    let known_equal = (0..holes.len())
+        .filter(|&i| holes.pixels()[i][0] == 0.0)
+        .all(|i| sparse_frame.pixels()[i] == dense_frame.pixels()[i]);
+    assert!(known_equal, "known pixels are the warp's in both");
     let out = ivp(&[
         "infer",
         "--clip",
@@ -391,9 +438,9 @@ fn train_export_eval_infer_and_upsample_from_the_command_line() {
         "bench",
         "frame",
         "--height",
-        "64",
+        "240",
         "--width",
-        "96",
+        "320",
         "--width-mult",
         "0.125",
         "--runs",
@@ -403,9 +450,31 @@ fn train_export_eval_infer_and_upsample_from_the_command_line() {
     ]);
     let report: serde_json::Value = serde_json::from_str(json.trim()).unwrap();
     assert_eq!(report["coverage"], "sparse");
-    for stage in ["warp", "holes", "prior", "network", "infill", "total"] {
-        assert!(report["stages"][stage]["median_ms"].as_f64().is_some_and(|ms| ms >= 0.0), "{stage}: {json}");
+    let median = |stage: &str| report["stages"][stage]["median_ms"].as_f64().unwrap_or(f64::NAN);
+    for stage in ["warp", "holes", "prior", "network", "infill"] {
+        assert!(median(stage).is_finite() && median(stage) <= median("total"), "{stage}: {json}");
     }
+    // The generated frame has holes (smaller ones have none), so the network ran on some tiles.
+    assert!(report["hole_fraction"].as_f64().unwrap() > 0.0 && report["tiles"].as_u64().unwrap() > 0, "{json}");
+    assert!(median("network") > 0.0 && median("total") > 0.0, "{json}");
+
+    // The frames of a clip on disk, each target by stage with its holes, tiles and error.
+    let json = ok(&["bench", "frame", "--data", s(&clip), "--targets", "6,8", "--model", s(&model), "--runs", "1"]);
+    let report: serde_json::Value = serde_json::from_str(json.trim()).unwrap();
+    let frames = report["frames"].as_array().unwrap();
+    assert_eq!((report["case"].as_str(), frames.len()), (Some("clip"), 2), "{json}");
+    for (frame, t) in frames.iter().zip([6, 8]) {
+        assert_eq!(frame["target"], t);
+        assert!(frame["hole_fraction"].as_f64().unwrap() > 0.0, "{json}");
+        let read = frame["pixels_read_fraction"].as_f64().unwrap();
+        assert!(read > 0.0 && read < 3.0, "sparse tiles read a part of the frame per pass: {json}");
+        assert!(frame["d_mse"].as_f64().is_some() && frame["d_mse_fill"].as_f64().is_some(), "{json}");
+    }
+    let totals: Vec<f64> = frames.iter().map(|f| f["stages"]["total"]["median_ms"].as_f64().unwrap()).collect();
+    let over = &report["total_over_frames"];
+    assert_eq!(over["min_ms"].as_f64().unwrap(), totals.iter().cloned().fold(f64::INFINITY, f64::min), "{json}");
+    let out = ivp(&["bench", "frame", "--data", s(&clip), "--targets", "2", "--model", s(&model)]);
+    assert!(!out.status.success() && String::from_utf8_lossy(&out.stderr).contains("target 2 needs frames"));
 
     // Bad model files are refused with their name.
     let out = ivp(&["infer", "--clip", s(&clip), "--model", s(&config), "--target", "6", "--out", s(&infer)]);
@@ -419,7 +488,11 @@ fn a_narrower_depth_head_trains_and_its_model_runs() {
     let dir = tempfile::tempdir().unwrap();
     let run = dir.path().join("run");
     let config = dir.path().join("tiny.toml");
-    std::fs::write(&config, "width_mult = 0.125\nsteps = 1\nbatch = 2\ncrop = 32\nvalidation_samples = 2\n").unwrap();
+    std::fs::write(
+        &config,
+        "width_mult = 0.125\nsteps = 1\nbatch = 2\ncrop = 32\nvalidation_clips = 1\nvalidation_hd_clips = 0\n",
+    )
+    .unwrap();
     let stdout = ok(&["train", "--synthetic", "--config", s(&config), "--depth-head-mult", "0.5", "--out", s(&run)]);
     assert!(stdout.contains("training full (width 0.125, depth head 0.5)"), "{stdout}");
     let model = run.join("model.safetensors");

@@ -8,7 +8,7 @@ use std::time::{Duration, Instant};
 use rand::{Rng, SeedableRng};
 
 const RECIPE: &str = "width_mult = 0.125\nsteps = 12\nbatch = 2\ncrop = 32\nguide_steps = 4\n\
-                      validation_samples = 2\nlog_every = 1\nvalidate_every = 0\ncheckpoint_every = 2\n";
+                      validation_clips = 1\nvalidation_hd_clips = 0\nlog_every = 1\nvalidate_every = 0\ncheckpoint_every = 2\n";
 
 fn train(config: &Path, out: &Path, resume: bool) -> Command {
     let mut cmd = Command::new(env!("CARGO_BIN_EXE_ivp"));

@@ -12,7 +12,7 @@ use std::time::{Duration, Instant};
 
 /// A few dozen steps of a small network: the guide fades at step 8, validation at 12 and 24.
 const RECIPE: &str = "width_mult = 0.125\nsteps = 24\nbatch = 4\ncrop = 32\nguide_steps = 8\n\
-                      validation_samples = 6\nlog_every = 1\nvalidate_every = 12\ncheckpoint_every = 8\n";
+                      validation_clips = 2\nvalidation_hd_clips = 0\nlog_every = 1\nvalidate_every = 12\ncheckpoint_every = 8\n";
 
 /// Tolerances of issue 15's acceptance: logged losses within 1e-3 relative, parameters within 1e-2
 /// of the largest parameter. Two ranks sum the gradients of their halves where one rank sums the
@@ -168,6 +168,7 @@ fn two_ranks_train_like_one_and_resume_bit_identically() {
     assert!(whole == resumed, "the resumed 2-rank run differs from the uninterrupted one");
     let (whole, resumed) =
         (metrics(&dir.path().join("two/metrics.csv")), metrics(&dir.path().join("stopped/metrics.csv")));
+    assert_eq!(whole.len(), resumed.len(), "the resumed run logs as many rows as the whole one");
     for (a, b) in whole.iter().zip(&resumed) {
         assert_eq!(
             a[..10].iter().map(|v| v.to_bits()).collect::<Vec<_>>(),

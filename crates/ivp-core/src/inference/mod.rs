@@ -49,6 +49,9 @@ pub struct ModelPrediction {
     pub stages: Vec<(&'static str, Duration)>,
     /// Tiles the network ran on, over every iteration (0 when it ran densely).
     pub tiles: usize,
+    /// Pixels of the frame the network saw (shrunk, at a scale factor above 1) that it read over
+    /// every iteration: its tiles' inputs, or the whole frame per dense pass.
+    pub pixels_read: usize,
 }
 
 /// The network in one dense pass over the frame as it is.
@@ -71,6 +74,8 @@ struct FramePrediction {
     network_time: Duration,
     /// Tiles run through the network over every iteration (0 in dense passes).
     tiles: usize,
+    /// Pixels the network read over every iteration.
+    pixels_read: usize,
 }
 
 /// [`infill_frame`] with any coverage and scale factor (vector variants only), the vectors used,
@@ -86,7 +91,7 @@ fn predict_frame(
     if net.config().variant.predicts_vectors() {
         let predictor = NetworkPredictor::new(net, coverage, factor);
         let out = infill_iteratively(&predictor, warped, depth, holes, prior, iterations)?;
-        let tiles = predictor.tiles_run();
+        let (tiles, pixels_read) = (predictor.tiles_run(), predictor.pixels_read());
         tracing::debug!(
             factor,
             filled_per_iteration = ?out.filled_per_iteration,
@@ -99,11 +104,13 @@ fn predict_frame(
             vectors: Some(out.vectors),
             network_time: out.predict_time,
             tiles,
+            pixels_read,
         });
     }
     let started = Instant::now();
-    let image = predict_intensity(net, inputs).map_err(|e| InfillError::Other(format!("network: {e}")))?;
-    Ok(FramePrediction { image, vectors: None, network_time: started.elapsed(), tiles: 0 })
+    let image = predict_intensity(net, inputs)?;
+    let pixels_read = inputs.warped.len();
+    Ok(FramePrediction { image, vectors: None, network_time: started.elapsed(), tiles: 0, pixels_read })
 }
 
 /// The intensity variant: the network's colours on the disocclusions, the warp elsewhere.
@@ -206,6 +213,7 @@ impl ModelInfiller {
             vectors: out.vectors,
             stages: vec![("prior", prior_time), ("network", out.network_time), ("infill", infill_time)],
             tiles: out.tiles,
+            pixels_read: out.pixels_read,
         })
     }
 }

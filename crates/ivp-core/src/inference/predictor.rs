@@ -15,7 +15,7 @@ use crate::inference::scaled::NetworkFrame;
 use crate::inference::tiles::{plan_tiles, Tile, TileShape};
 use crate::infill::{InfillError, VectorPredictor};
 use crate::nn::model::{IvpNet, NetInput};
-use crate::nn::ops::at_points::Pixel;
+use crate::nn::ops::at_points::BatchPixel;
 use crate::nn::ops::profile;
 use crate::nn::tensor::to_batch_tensor;
 use crate::prior::ScaledPrior;
@@ -49,11 +49,25 @@ pub struct NetworkPredictor<'a> {
     factor: usize,
     tiles_run: AtomicUsize,
     dense_passes: AtomicUsize,
+    pixels_read: AtomicUsize,
 }
 
 impl<'a> NetworkPredictor<'a> {
     pub fn new(net: &'a IvpNet, coverage: Coverage, factor: usize) -> Self {
-        Self { net, coverage, factor: factor.max(1), tiles_run: AtomicUsize::new(0), dense_passes: AtomicUsize::new(0) }
+        Self {
+            net,
+            coverage,
+            factor: factor.max(1),
+            tiles_run: AtomicUsize::new(0),
+            dense_passes: AtomicUsize::new(0),
+            pixels_read: AtomicUsize::new(0),
+        }
+    }
+
+    /// Pixels of the (shrunk) frame the network read so far, over every call: the tiles' inputs,
+    /// or the whole frame for each dense pass.
+    pub fn pixels_read(&self) -> usize {
+        self.pixels_read.load(Ordering::Relaxed)
     }
 
     /// Tiles run through the network so far, over every call (0 in dense passes).
@@ -125,7 +139,7 @@ impl<'a> NetworkPredictor<'a> {
             last: None,
             last_warped: None,
         };
-        let values: Vec<f32> = self.net.raw_output_at(&input, &points)?.flatten_all()?.to_vec1()?;
+        let values: Vec<f32> = self.net.unmasked_output_at(&input, &points)?.flatten_all()?.to_vec1()?;
         let plane = tw * th;
         let mut vectors = vec![0f32; batch.len() * 2 * plane];
         for (p, v) in points.iter().zip(values.chunks_exact(2)) {
@@ -137,7 +151,7 @@ impl<'a> NetworkPredictor<'a> {
 }
 
 /// The pixels to predict in the cores of `batch` (tile `i` is image `i`), in the tiles' coordinates.
-fn points_to_predict(frame: &NetworkFrame<'_>, batch: &[&Tile]) -> Vec<Pixel> {
+fn points_to_predict(frame: &NetworkFrame<'_>, batch: &[&Tile]) -> Vec<BatchPixel> {
     let width = frame.whole().width;
     let mut points = Vec::new();
     for (image, tile) in batch.iter().enumerate() {
@@ -145,7 +159,11 @@ fn points_to_predict(frame: &NetworkFrame<'_>, batch: &[&Tile]) -> Vec<Pixel> {
             for y in core.y..core.y + core.height {
                 let holes = &frame.holes()[y * width..][core.x..core.x + core.width];
                 let row = holes.iter().enumerate().filter(|(_, &hole)| hole);
-                points.extend(row.map(|(u, _)| Pixel { image, y: y - tile.input.y, x: core.x + u - tile.input.x }));
+                points.extend(row.map(|(u, _)| BatchPixel {
+                    image,
+                    y: y - tile.input.y,
+                    x: core.x + u - tile.input.x,
+                }));
             }
         }
     }
@@ -168,13 +186,17 @@ impl VectorPredictor for NetworkPredictor<'_> {
         vectors: &mut VectorField,
     ) -> Result<(), InfillError> {
         if !self.net.config().variant.predicts_vectors() {
-            return Err(InfillError::Other("the intensity variant predicts colours, not vectors".into()));
+            return Err(InfillError::NotVectors);
         }
-        let full_size = (prior.width(), prior.height()) == (depth.width(), depth.height());
-        if !full_size || holes.len() != depth.len() || !vectors.same_size(depth) {
-            return Err(InfillError::Other(
-                "the prior, depth, holes and vectors given to the network differ in size".into(),
-            ));
+        let expected = (depth.width(), depth.height());
+        let hole_rows = holes.len() / depth.width().max(1);
+        let sizes = [
+            ("the prior", (prior.width(), prior.height())),
+            ("the vector field", (vectors.width(), vectors.height())),
+            ("the hole mask", if holes.len() == depth.len() { expected } else { (depth.width(), hole_rows) }),
+        ];
+        if let Some(&(what, found)) = sizes.iter().find(|(_, found)| *found != expected) {
+            return Err(InfillError::SizeMismatch { what, found, expected });
         }
         let frame = NetworkFrame::new(prior, depth, holes, self.factor);
         let whole = frame.whole();
@@ -200,16 +222,11 @@ impl VectorPredictor for NetworkPredictor<'_> {
                 }
             }
         };
-        let non_finite =
-            self.run_tiles(&frame, &tiles, vectors).map_err(|e| InfillError::Other(format!("network: {e}")))?;
-        if non_finite > 0 {
-            // Broken weights or inputs must not pass for a prediction (the iterative infilling
-            // would silently fall back to `fill`).
+        self.pixels_read.fetch_add(tiles.iter().map(|t| t.input.area()).sum(), Ordering::Relaxed);
+        let count = self.run_tiles(&frame, &tiles, vectors)?;
+        if count > 0 {
             let total = holes.iter().filter(|&&h| h).count();
-            return Err(InfillError::Other(format!(
-                "network: {non_finite} of {total} hole pixels got non-finite vectors (NaN or infinite): the model's \
-                 weights or inputs are broken"
-            )));
+            return Err(InfillError::NonFiniteVectors { count, total });
         }
         Ok(())
     }

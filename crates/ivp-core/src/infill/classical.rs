@@ -106,13 +106,11 @@ impl Infiller for Oracle {
         let ground_truth = ctx.ground_truth.ok_or(InfillError::NeedsGroundTruth("oracle"))?;
         let warped = ctx.warped;
         if !ground_truth.same_size(&warped.image) {
-            return Err(InfillError::Other(format!(
-                "ground truth is {}x{} but the warped frame is {}x{}",
-                ground_truth.width(),
-                ground_truth.height(),
-                warped.image.width(),
-                warped.image.height()
-            )));
+            return Err(InfillError::SizeMismatch {
+                what: "the ground truth",
+                found: (ground_truth.width(), ground_truth.height()),
+                expected: (warped.image.width(), warped.image.height()),
+            });
         }
         let holes = &warped.holes;
         let (vectors, prior_elapsed) =
@@ -284,7 +282,7 @@ mod tests {
         assert!(matches!(oracle.infill(&scene.context(false)), Err(InfillError::NeedsGroundTruth("oracle"))));
         let small = Image::filled(3, 3, RED);
         let ctx = InfillContext { ground_truth: Some(&small), ..scene.context(false) };
-        assert!(matches!(oracle.infill(&ctx), Err(InfillError::Other(_))));
+        assert!(matches!(oracle.infill(&ctx), Err(InfillError::SizeMismatch { what: "the ground truth", .. })));
     }
 
     #[test]

@@ -176,8 +176,8 @@ impl State<'_> {
     }
 }
 
-fn size_error(what: &str, w: usize, h: usize, width: usize, height: usize) -> InfillError {
-    InfillError::Other(format!("{what} is {w}x{h} but the warped frame is {width}x{height}"))
+fn size_error(what: &'static str, w: usize, h: usize, width: usize, height: usize) -> InfillError {
+    InfillError::SizeMismatch { what, found: (w, h), expected: (width, height) }
 }
 
 /// ALGORITHMS.md §6.5 on the disocclusion pixels of `holes`, then the common new-region rule (ALGORITHMS.md §4.1)
@@ -212,7 +212,7 @@ pub fn infill_iteratively(
     let start = Instant::now();
     let (w, h) = (warped.width(), warped.height());
     if iterations == 0 {
-        return Err(InfillError::Other("iterative infilling needs at least one iteration".into()));
+        return Err(InfillError::NoIterations);
     }
     if !warped_depth.same_size(warped) {
         return Err(size_error("the warped depth", warped_depth.width(), warped_depth.height(), w, h));
@@ -934,8 +934,10 @@ mod tests {
         let warp = row_scene();
         let prior = ScaledPrior::full_size(zero_prior(&warp));
         let ok = constant([1.0, 0.0]);
-        let err = |result: Result<IterativeInfill, InfillError>| matches!(result, Err(InfillError::Other(_)));
-        assert!(err(infill_iteratively(&ok, &warp.image, &warp.depth, &warp.holes, &prior, 0)));
+        let err =
+            |result: Result<IterativeInfill, InfillError>| matches!(result, Err(InfillError::SizeMismatch { .. }));
+        let no_iterations = infill_iteratively(&ok, &warp.image, &warp.depth, &warp.holes, &prior, 0);
+        assert!(matches!(no_iterations, Err(InfillError::NoIterations)));
         assert!(err(infill_iteratively(&ok, &warp.image, &warp.depth, &warp.holes, &ScaledPrior::zeros(3, 3, 1), 3)));
         assert!(err(infill_iteratively(&ok, &warp.image, &DepthMap::zeros(8, 4), &warp.holes, &prior, 3)));
         let wrong_size = FnPredictor(|_: &VectorField, _: &DepthMap, _: &[bool]| VectorField::zeros(2, 2));
@@ -943,10 +945,10 @@ mod tests {
         struct Failing;
         impl VectorPredictor for Failing {
             fn predict(&self, _: &VectorField, _: &DepthMap, _: &[bool]) -> Result<VectorField, InfillError> {
-                Err(InfillError::Other("no model".into()))
+                Err(candle_core::Error::Msg("no model".into()).into())
             }
         }
         let result = infill_iteratively(&Failing, &warp.image, &warp.depth, &warp.holes, &prior, 3);
-        assert!(matches!(result, Err(InfillError::Other(message)) if message == "no model"));
+        assert!(matches!(&result, Err(InfillError::Network(e)) if e.to_string().contains("no model")), "{result:?}");
     }
 }

@@ -63,8 +63,23 @@ pub struct Infilled {
 pub enum InfillError {
     #[error("method `{0}` needs the ground-truth target frame, which this context does not have")]
     NeedsGroundTruth(&'static str),
-    #[error("{0}")]
-    Other(String),
+    /// An input does not have the warped frame's size.
+    #[error("{what} is {}x{} but the warped frame is {}x{}", found.0, found.1, expected.0, expected.1)]
+    SizeMismatch { what: &'static str, found: (usize, usize), expected: (usize, usize) },
+    #[error("iterative infilling needs at least one iteration")]
+    NoIterations,
+    #[error("the intensity variant predicts colours, not vectors")]
+    NotVectors,
+    /// The network's forward pass failed.
+    #[error("network: {0}")]
+    Network(#[from] candle_core::Error),
+    /// Broken weights or inputs must not pass for a prediction (the iterative infilling would
+    /// silently fall back to `fill`).
+    #[error(
+        "network: {count} of {total} hole pixels got non-finite vectors (NaN or infinite): the model's weights or \
+         inputs are broken"
+    )]
+    NonFiniteVectors { count: usize, total: usize },
 }
 
 /// A method that predicts a frame from its warped version.

@@ -198,7 +198,7 @@ fn adjacent_pairs(mask: &Tensor, dim: usize) -> Result<Tensor> {
 }
 
 /// `|x|` whose gradient is sign(x), 0 at 0 (PyTorch's), rather than candle's +1 at 0.
-fn abs(x: &Tensor) -> Result<Tensor> {
+pub fn abs(x: &Tensor) -> Result<Tensor> {
     x * x.sign()?.detach()
 }
 

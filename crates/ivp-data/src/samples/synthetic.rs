@@ -14,9 +14,15 @@ impl From<SyntheticClip> for ClipFrames {
 
 /// Generated scenes: clip `id` is [`render_clip`]`(seed, params)` with the seed the sampler
 /// derives from its own seed, the split and `id`, so training and validation never share a scene.
+///
+/// With several frame scales ([`SyntheticSource::with_scales`]) each clip is rendered at
+/// `params`' size times one of them, drawn from its seed: the same scene, camera and motion seen by
+/// a sensor with `scale` times the pixels, so its holes are `scale` times wider in pixels. That
+/// is how training sees the hole widths of 1080p frames without rendering 1080p.
 #[derive(Clone, Debug)]
 pub struct SyntheticSource {
     params: SceneParams,
+    scales: Vec<usize>,
 }
 
 impl SyntheticSource {
@@ -24,7 +30,22 @@ impl SyntheticSource {
     pub const TRAINING_SIZE: (usize, usize) = (512, 384);
 
     pub fn new(params: SceneParams) -> Self {
-        Self { params }
+        Self { params, scales: vec![1] }
+    }
+
+    /// Clips rendered at `params`' size times one of `scales` (each a whole number of at least 1;
+    /// an empty list means `[1]`), chosen per clip from its seed.
+    pub fn with_scales(self, scales: &[usize]) -> Self {
+        let scales = if scales.is_empty() { vec![1] } else { scales.iter().map(|&s| s.max(1)).collect() };
+        Self { scales, ..self }
+    }
+
+    /// The scene parameters of the clip of `seed`: `params` at the clip's scale.
+    pub fn params_for(&self, seed: u64) -> SceneParams {
+        // The seed is already a hash of the sampler's seed, split and clip id: its low bits are
+        // uniform and unrelated to the scene the renderer draws from the whole seed.
+        let scale = self.scales[(seed % self.scales.len() as u64) as usize];
+        SceneParams { width: self.params.width * scale, height: self.params.height * scale, ..self.params.clone() }
     }
 
     /// The scene defaults at 512x384, so that the reference's 256x256 crops fit.
@@ -44,11 +65,11 @@ impl ClipSource for SyntheticSource {
     }
 
     fn load(&self, _id: u64, seed: u64) -> Result<ClipFrames> {
-        Ok(render_clip(seed, &self.params).into())
+        Ok(render_clip(seed, &self.params_for(seed)).into())
     }
 
     fn origin(&self, id: u64, seed: u64) -> PathBuf {
-        let SceneParams { width, height, .. } = self.params;
+        let SceneParams { width, height, .. } = self.params_for(seed);
         PathBuf::from(format!("synthetic clip {id} (render seed {seed:#018x}, {width}x{height})"))
     }
 }

@@ -7,7 +7,7 @@ use clap::Subcommand;
 use std::path::PathBuf;
 
 use crate::bench::{bench_infer, bench_train, InferCase, TrainCase};
-use crate::bench_frame::{bench_frame, FrameCase};
+use crate::bench_frame::{bench_clip, bench_frame, FrameCase, FrameSource};
 use crate::checkpoint::check_depth_head_mult;
 use crate::cli::CoverageArgs;
 
@@ -49,20 +49,27 @@ pub enum BenchCommand {
         #[arg(long)]
         profile: bool,
     },
-    /// One frame end to end on a generated clip: warp, holes, prior, network, infill, by stage,
-    /// with the hole fraction, the tiles run, and the frame's D-MSE beside fill's.
+    /// One frame end to end, generated or each target of a clip (--data CLIP --targets ...):
+    /// warp, holes, prior, network, infill, by stage, with the hole fraction, the tiles run, the
+    /// pixels they read, and the frame's D-MSE beside fill's.
     Frame(FrameArgs),
 }
 
 /// The arguments of `ivp bench frame`.
 #[derive(Debug, clap::Args)]
 pub struct FrameArgs {
-    /// Frame height in pixels.
-    #[arg(long, default_value_t = 1080)]
+    /// Frame height in pixels of the generated frame.
+    #[arg(long, default_value_t = 1080, conflicts_with = "data")]
     pub height: usize,
-    /// Frame width in pixels.
-    #[arg(long, default_value_t = 1920)]
+    /// Frame width in pixels of the generated frame.
+    #[arg(long, default_value_t = 1920, conflicts_with = "data")]
     pub width: usize,
+    /// Time the targets of this clip instead of a generated frame.
+    #[arg(long, requires = "targets")]
+    pub data: Option<PathBuf>,
+    /// The targets of --data to time, comma-separated (each needs frames t-3 .. t).
+    #[arg(long, value_delimiter = ',', requires = "data")]
+    pub targets: Vec<usize>,
     /// A trained model file; without it, an untrained network of --width-mult.
     #[arg(long, conflicts_with = "width_mult")]
     pub model: Option<PathBuf>,
@@ -78,7 +85,7 @@ pub struct FrameArgs {
     /// Timed runs (after one untimed warm-up run).
     #[arg(long, default_value_t = 5)]
     pub runs: usize,
-    /// Seed of the generated scene.
+    /// Seed of the generated scene (and of the untrained network's weights).
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
     #[command(flatten)]
@@ -93,11 +100,14 @@ impl FrameArgs {
         ensure_width_mult(self.width_mult)?;
         check_depth_head_mult(self.depth_head_mult).map_err(anyhow::Error::msg)?;
         ensure!(self.height >= 16 && self.width >= 16, "--height and --width must be at least 16");
+        let frames = match self.data {
+            Some(dir) => FrameSource::Clip { dir, targets: self.targets },
+            None => FrameSource::Generated { height: self.height, width: self.width, seed: self.seed },
+        };
         Ok(FrameCase {
             coverage: self.coverage.coverage()?,
             scale: self.coverage.scale,
-            height: self.height,
-            width: self.width,
+            frames,
             model: self.model,
             width_mult: self.width_mult,
             depth_head_mult: self.depth_head_mult,
@@ -122,8 +132,12 @@ pub fn run_bench(command: BenchCommand) -> Result<()> {
             bench_infer(&InferCase { height, width, runs, width_mult, profile })?
         }
         BenchCommand::Frame(args) => {
-            let report = bench_frame(&args.case()?)?;
-            println!("{}", serde_json::to_string(&report)?);
+            let case = args.case()?;
+            let json = match case.frames {
+                FrameSource::Generated { .. } => serde_json::to_string(&bench_frame(&case)?)?,
+                FrameSource::Clip { .. } => serde_json::to_string(&bench_clip(&case)?)?,
+            };
+            println!("{json}");
             return Ok(());
         }
     };

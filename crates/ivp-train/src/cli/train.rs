@@ -6,6 +6,7 @@ use std::sync::Arc;
 
 use anyhow::{Context, Result};
 use clap::Args;
+use ivp_core::nn::model::Variant;
 
 use crate::checkpoint::export_model;
 use crate::demo::{demo_config, demo_methods, evaluation_data, model_path, plan_training, DemoTraining};
@@ -26,7 +27,7 @@ pub struct TrainArgs {
     config: Option<PathBuf>,
     /// full, intensity, no-tg (zeros for the temporal prior) or no-depth (no depth head).
     #[arg(long)]
-    variant: Option<String>,
+    variant: Option<Variant>,
     /// Width multiplier of the U-Net: 1 = the paper's widths (64 ... 256); recipe: 0.25.
     #[arg(long)]
     width_mult: Option<f64>,
@@ -83,9 +84,10 @@ pub struct DemoArgs {
 
 #[derive(Args)]
 pub struct ExportArgs {
-    /// A checkpoint (RUN_DIR/checkpoints/step_*.safetensors) or a model file.
-    #[arg(long)]
-    checkpoint: PathBuf,
+    /// A checkpoint (RUN_DIR/checkpoints/step_*.safetensors) or a model file; with several
+    /// (`--checkpoint A B ...`), the parameters of all of them are averaged.
+    #[arg(long, required = true, num_args = 1..)]
+    checkpoint: Vec<PathBuf>,
     /// The model file to write.
     #[arg(long)]
     out: PathBuf,
@@ -150,10 +152,7 @@ fn run_train_on(group: &dyn ProcessGroup, args: TrainArgs, progress: bool) -> Re
         );
     }
     if let (Some(v), Some(f)) = (summary.last_validation, summary.fill) {
-        println!(
-            "validation after {} steps ({minutes:.1} min): D-MSE {:.1} D-SSIM {:.4}; fill D-MSE {:.1} D-SSIM {:.4}",
-            summary.steps_done, v.d_mse, v.d_ssim, f.d_mse, f.d_ssim
-        );
+        println!("validation after {} steps ({minutes:.1} min): {}", summary.steps_done, v.describe(&f));
     }
     match &summary.model_path {
         Some(path) => println!("model written to {}", path.display()),
@@ -234,6 +233,10 @@ pub fn run_demo(args: DemoArgs, progress: bool) -> Result<()> {
 
 pub fn run_export(args: ExportArgs) -> Result<()> {
     let config = export_model(&args.checkpoint, &args.out)?;
-    println!("exported {config} to {}", args.out.display());
+    let averaged = match args.checkpoint.len() {
+        1 => String::new(),
+        n => format!(" (the mean of {n} checkpoints)"),
+    };
+    println!("exported {config}{averaged} to {}", args.out.display());
     Ok(())
 }

@@ -18,7 +18,7 @@ use crate::nn::ops::{contiguous_values, profile};
 
 /// One pixel of a batch of maps: image, row, column.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash)]
-pub struct Pixel {
+pub struct BatchPixel {
     pub image: usize,
     pub y: usize,
     pub x: usize,
@@ -27,7 +27,7 @@ pub struct Pixel {
 /// The pixels of a `(batch, height, width)` map upsampled (nearest, x2, cropped to `fine`) that
 /// a 3x3 convolution with zero padding reads to compute `points` of the `fine` map: each point's
 /// in-bounds neighbours, halved. In row-major order, each once.
-pub fn pixels_read(points: &[Pixel], fine: (usize, usize), coarse: (usize, usize, usize)) -> Vec<Pixel> {
+pub fn pixels_read(points: &[BatchPixel], fine: (usize, usize), coarse: (usize, usize, usize)) -> Vec<BatchPixel> {
     let (height, width) = fine;
     let (batch, h, w) = coarse;
     let mut read = vec![false; batch * h * w];
@@ -41,7 +41,7 @@ pub fn pixels_read(points: &[Pixel], fine: (usize, usize), coarse: (usize, usize
     read.iter()
         .enumerate()
         .filter(|(_, &r)| r)
-        .map(|(i, _)| Pixel { image: i / (h * w), y: i / w % h, x: i % w })
+        .map(|(i, _)| BatchPixel { image: i / (h * w), y: i / w % h, x: i % w })
         .collect()
 }
 
@@ -60,7 +60,7 @@ pub fn decoder_step_at(
     weight: &Tensor,
     bias: &Tensor,
     relu: bool,
-    points: &[Pixel],
+    points: &[BatchPixel],
 ) -> Result<Tensor> {
     let (b, cc, h, w) = coarse.dims4()?;
     let (bs, cs, height, width) = skip.dims4()?;
@@ -165,7 +165,7 @@ const CHANNELS_PER_BLOCK: usize = 64;
 const POINTS_PER_BLOCK: usize = 512;
 
 /// The map of shape (B, C, H, W) that holds `values` (N, C) at `points` and zeros elsewhere.
-pub fn scatter(values: &Tensor, points: &[Pixel], (b, c, h, w): (usize, usize, usize, usize)) -> Result<Tensor> {
+pub fn scatter(values: &Tensor, points: &[BatchPixel], (b, c, h, w): (usize, usize, usize, usize)) -> Result<Tensor> {
     let (n, cv) = values.dims2()?;
     if n != points.len() || cv != c {
         bail!("scatter: {:?} values for {} points of {c} channels", values.dims(), points.len());
@@ -187,9 +187,9 @@ mod tests {
     use crate::nn::ops::{conv2d, conv2d_relu, upsample_concat};
 
     /// Points spread over both images, the borders and the corners of an odd-sized map.
-    fn points(b: usize, height: usize, width: usize) -> Vec<Pixel> {
-        let mut points: Vec<Pixel> = (0..b)
-            .flat_map(|image| (0..height).flat_map(move |y| (0..width).map(move |x| Pixel { image, y, x })))
+    fn points(b: usize, height: usize, width: usize) -> Vec<BatchPixel> {
+        let mut points: Vec<BatchPixel> = (0..b)
+            .flat_map(|image| (0..height).flat_map(move |y| (0..width).map(move |x| BatchPixel { image, y, x })))
             .filter(|p| (p.y * 7 + p.x * 3 + p.image) % 5 == 0 || p.y == 0 || p.x == width - 1)
             .collect();
         points.sort();
@@ -239,8 +239,11 @@ mod tests {
         let coarse = random(&[b, cc, h, w], 5);
         let skip = random(&[b, cs, height, width], 6);
         let (weight, bias) = (random(&[cout, cc + cs, 3, 3], 7), random(&[cout], 8));
-        let pts: Vec<Pixel> =
-            vec![Pixel { image: 0, y: 0, x: 0 }, Pixel { image: 1, y: 6, x: 9 }, Pixel { image: 1, y: 12, x: 3 }];
+        let pts: Vec<BatchPixel> = vec![
+            BatchPixel { image: 0, y: 0, x: 0 },
+            BatchPixel { image: 1, y: 6, x: 9 },
+            BatchPixel { image: 1, y: 12, x: 3 },
+        ];
         let read = pixels_read(&pts, (height, width), (b, h, w));
         // Keep the coarse values at the pixels read, zero the rest.
         let values = flat(&coarse);
@@ -258,7 +261,7 @@ mod tests {
         assert_eq!(whole, from_sparse);
         // The pixels read, row-major and once each: the corner's 2x2 neighbours halve to one
         // pixel; (6, 9) reads rows 5-7 and columns 8-9 (the last); (12, 3) rows 11-12, columns 2-4.
-        let px = |image, y, x| Pixel { image, y, x };
+        let px = |image, y, x| BatchPixel { image, y, x };
         let want = [px(0, 0, 0), px(1, 2, 4), px(1, 3, 4), px(1, 5, 1), px(1, 5, 2), px(1, 6, 1), px(1, 6, 2)];
         assert_eq!(read, want);
     }
@@ -268,7 +271,7 @@ mod tests {
         let coarse = random(&[1, 2, 3, 3], 1);
         let skip = random(&[1, 1, 6, 6], 2);
         let (weight, bias) = (random(&[2, 3, 3, 3], 3), random(&[2], 4));
-        let outside = [Pixel { image: 0, y: 6, x: 0 }];
+        let outside = [BatchPixel { image: 0, y: 6, x: 0 }];
         assert!(decoder_step_at(&coarse, &skip, &weight, &bias, false, &outside).is_err());
         let wrong = random(&[2, 4, 3, 3], 3);
         assert!(decoder_step_at(&coarse, &skip, &wrong, &bias, false, &[]).is_err());

@@ -1,0 +1,139 @@
+#!/usr/bin/env python3
+"""Tables of the recipe's seeds from the JSON that score.sh writes (results/recipe-hd/README.md).
+
+Usage: table.py NAME=SCORES_DIR[:RUN_DIR] ...
+SCORES_DIR holds dev12.json and hd_scale-*.json of one model; RUN_DIR (optional) its training run,
+whose metrics.csv gives the validation the run printed last. Prints markdown: per model, D-MSE and
+its ratio to fill on the 12 clips at 320x240 and on the 1080p clips at every scale scored, the worst
+1080p frame against fill, ms/frame; then mean +- sd over the models, the worst against the best,
+and the rank agreement (Spearman) of the printed validation with the 12 clips and the 1080p clips.
+"""
+import csv
+import glob
+import json
+import os
+import statistics
+import sys
+
+
+def load(path):
+    with open(path) as f:
+        return json.load(f)
+
+
+def model_scores(report):
+    (name,) = [n for n in report["methods"] if n not in ("fill", "telea", "oracle", "copy", "warp")]
+    return name, report["methods"][name], report["methods"]["fill"]
+
+
+def worst_frame(report, name):
+    """Largest ratio of the model's D-MSE to fill's over the frames with disocclusions."""
+    ratios = [
+        (r["d_mse"][name] / r["d_mse"]["fill"], f'{r["clip"]} t{r["target"]}')
+        for r in report.get("per_frame", [])
+        if r["d_mse"].get(name) is not None and r["d_mse"]["fill"]
+    ]
+    return max(ratios) if ratios else (float("nan"), "-")
+
+
+def per_clip(report, name):
+    clips = {}
+    for r in report.get("per_frame", []):
+        if r["d_mse"].get(name) is not None:
+            m, f = clips.setdefault(r["clip"], ([], []))
+            m.append(r["d_mse"][name])
+            f.append(r["d_mse"]["fill"])
+    return {c: statistics.mean(m) / statistics.mean(f) for c, (m, f) in sorted(clips.items())}
+
+
+def last_validation(run_dir):
+    rows = [r for r in csv.DictReader(open(os.path.join(run_dir, "metrics.csv"))) if r["val_d_mse"]]
+    if not rows:
+        return None
+    r = rows[-1]
+    small = float(r["val_d_mse"]) / float(r["fill_d_mse"])
+    large = float(r["val_hd_d_mse"]) / float(r["fill_hd_d_mse"]) if r.get("val_hd_d_mse") else float("nan")
+    return small, large
+
+
+def spearman(a, b):
+    def ranks(v):
+        order = sorted(range(len(v)), key=lambda i: v[i])
+        r = [0.0] * len(v)
+        for k, i in enumerate(order):
+            r[i] = k
+        return r
+    ra, rb = ranks(a), ranks(b)
+    n = len(a)
+    if n < 2:
+        return float("nan")
+    d = sum((x - y) ** 2 for x, y in zip(ra, rb))
+    return 1 - 6 * d / (n * (n * n - 1))
+
+
+def main(args):
+    rows = []
+    scales = set()
+    for arg in args:
+        name, _, dirs = arg.partition("=")
+        scores_dir, _, run_dir = dirs.partition(":")
+        row = {"name": name, "hd": {}}
+        mname, m, fill = model_scores(load(os.path.join(scores_dir, "dev12.json")))
+        row["dev12"] = (m["d_mse"], fill["d_mse"], m["ms_per_frame"])
+        for path in sorted(glob.glob(os.path.join(scores_dir, "hd_scale-*.json"))):
+            scale = path.rsplit("hd_scale-", 1)[1][:-5]
+            scales.add(scale)
+            report = load(path)
+            mname, m, fill = model_scores(report)
+            row["hd"][scale] = (m["d_mse"], fill["d_mse"], m["ms_per_frame"], worst_frame(report, mname),
+                                per_clip(report, mname))
+        row["validation"] = last_validation(run_dir) if run_dir else None
+        rows.append(row)
+    scales = sorted(scales, key=lambda s: (s != "auto", s))
+
+    head = "| model | 320x240, 12 clips: D-MSE (x fill) | ms |"
+    rule = "|---|---|---|"
+    for s in scales:
+        head += f" 1080p --scale {s}: D-MSE (x fill) | worst frame (x fill) | per clip (x fill) | ms |"
+        rule += "---|---|---|---|"
+    head += " validation printed (x fill: 320x240 / 1080p) |"
+    rule += "---|"
+    print(head)
+    print(rule)
+    for r in rows:
+        d, f, ms = r["dev12"]
+        line = f'| {r["name"]} | {d:.1f} ({d / f:.3f}) | {ms:.1f} |'
+        for s in scales:
+            if s in r["hd"]:
+                d, f, ms, (wr, wf), clips = r["hd"][s]
+                pc = " / ".join(f"{v:.2f}" for v in clips.values())
+                line += f" {d:.1f} ({d / f:.3f}) | {wr:.2f} ({wf}) | {pc} | {ms:.0f} |"
+            else:
+                line += " - | - | - | - |"
+        v = r["validation"]
+        line += f" {v[0]:.3f} / {v[1]:.3f} |" if v else " - |"
+        print(line)
+
+    def summary(label, values):
+        if len(values) < 2:
+            return
+        mean, sd = statistics.mean(values), statistics.stdev(values)
+        print(f"- {label}: {mean:.1f} +- {sd:.1f}; worst {max(values):.1f}, best {min(values):.1f}: "
+              f"worst/best = {max(values) / min(values):.3f}")
+
+    print()
+    summary("320x240, 12 clips, D-MSE", [r["dev12"][0] for r in rows])
+    for s in scales:
+        summary(f"1080p --scale {s}, D-MSE", [r["hd"][s][0] for r in rows if s in r["hd"]])
+    with_val = [r for r in rows if r["validation"]]
+    if len(with_val) >= 2:
+        rho = spearman([r["validation"][0] for r in with_val], [r["dev12"][0] for r in with_val])
+        print(f"- rank agreement (Spearman) of the printed 320x240 validation with the 12 clips: {rho:.2f} "
+              f"over {len(with_val)} models")
+        if all("auto" in r["hd"] for r in with_val):
+            rho = spearman([r["validation"][1] for r in with_val], [r["hd"]["auto"][0] for r in with_val])
+            print(f"- rank agreement of the printed 1080p validation with the 1080p clips (--scale auto): {rho:.2f}")
+
+
+if __name__ == "__main__":
+    main(sys.argv[1:])
