@@ -593,3 +593,73 @@ fn a_cycle_is_found_and_an_upward_import_is_seen() {
     assert!(edges[&m("prior")].iter().any(|t| t.first().is_some_and(|s| s == "geometry")));
     assert!(edges[&m("inference")].iter().any(|t| t.first().is_some_and(|s| s == "nn")));
 }
+
+/// Parents that use their children, not only declare and re-export them (ARCHITECTURE.md,
+/// "Invariants"): `inference` composes its children into `ModelInfiller`; `nn::ops::conv2d` hands
+/// the narrow layers to the kernels of its child `narrow`; ivp-data's `scene` composes shapes,
+/// textures, layout and camera path into `Scene` and `render_clip`; ivp-train's `cli` parser names
+/// each child's arguments and calls its `run_*`.
+const PARENTS_THAT_COMPOSE: &[(&str, &str)] =
+    &[("ivp-core", "inference"), ("ivp-core", "nn::ops::conv2d"), ("ivp-data", "scene"), ("ivp-train", "cli")];
+
+#[test]
+fn a_parent_module_only_declares_and_reexports_its_children() {
+    let mut composing = Vec::new();
+    for krate in crates() {
+        for (at, targets) in krate.edges() {
+            let allowed = PARENTS_THAT_COMPOSE.iter().any(|&(c, m)| c == krate.name && show(&at) == m);
+            let mut children: Vec<String> =
+                targets.iter().filter(|t| t.len() > at.len() && t.starts_with(&at)).map(show).collect();
+            // Inline paths that start at a child (`data::WarpArgs`) are uses, and so is a name
+            // re-exported from a child and then used in the parent's own code.
+            let module = &krate.modules[&at];
+            let child_names = krate.modules.keys().filter(|m| m.len() == at.len() + 1 && m.starts_with(&at));
+            for child in child_names.map(|m| m.last().unwrap()) {
+                let pattern = format!("{child}::");
+                let bytes = module.code.as_bytes();
+                let used = module.code.match_indices(&pattern).any(|(i, _)| {
+                    i == 0 || !(bytes[i - 1].is_ascii_alphanumeric() || bytes[i - 1] == b'_' || bytes[i - 1] == b':')
+                });
+                if used {
+                    children.push(format!("{child}:: (inline path)"));
+                }
+            }
+            let words: BTreeSet<&str> =
+                module.code.split(|c: char| !(c.is_alphanumeric() || c == '_')).filter(|w| !w.is_empty()).collect();
+            for u in module.uses.iter().filter(|u| u.public) {
+                for (path, bound) in &u.paths {
+                    // (`mod conv2d;` beside `pub use conv2d::conv2d;` names the module, not the item.)
+                    let is_module_name = krate.is_child_path(&at, std::slice::from_ref(bound));
+                    if krate.is_child_path(&at, path) && !is_module_name && words.contains(bound.as_str()) {
+                        children.push(format!("{} (re-exported, then used)", path.join("::")));
+                    }
+                }
+            }
+            if !children.is_empty() {
+                composing.push((krate.name.clone(), show(&at)));
+            }
+            assert!(
+                allowed || children.is_empty(),
+                "{}: module `{}` uses its own children {children:?}: move what it needs below them, or list it in \
+                 PARENTS_THAT_COMPOSE and ARCHITECTURE.md",
+                krate.name,
+                show(&at)
+            );
+        }
+    }
+    // The children of a composing parent do not import from it: that would be a cycle.
+    for krate in crates() {
+        let edges = krate.edges();
+        for (at, targets) in &edges {
+            let parent = &at[..at.len().saturating_sub(1)];
+            let composing = PARENTS_THAT_COMPOSE.iter().any(|&(c, m)| c == krate.name && show(&parent.to_vec()) == m);
+            if !at.is_empty() && composing {
+                assert!(!targets.contains(&parent.to_vec()), "{}: `{}` imports its parent", krate.name, show(at));
+            }
+        }
+    }
+    // The listed parents do use their children: the check sees such uses, and the list is not stale.
+    for &(c, m) in PARENTS_THAT_COMPOSE {
+        assert!(composing.contains(&(c.to_string(), m.to_string())), "{c}: `{m}` no longer uses its children");
+    }
+}

@@ -199,3 +199,27 @@ fn exporting_several_checkpoints_averages_their_parameters() {
     let err = export_model(&[a, other.join("model.safetensors")], &averaged).unwrap_err().to_string();
     assert!(err.contains("cannot be averaged"), "{err}");
 }
+
+#[test]
+fn a_run_can_write_the_mean_of_its_last_checkpoints_as_its_model() {
+    let dir = tempfile::tempdir().unwrap();
+    let run = dir.path().join("run");
+    let config = TrainConfig { average_checkpoints: 2, ..tiny(6) };
+    let summary = train(&config, &run, &quiet()).unwrap();
+    let checkpoints = run.join("checkpoints");
+    let mean = dir.path().join("mean.safetensors");
+    export_model(
+        &[checkpoints.join("step_00000003.safetensors"), checkpoints.join("step_00000006.safetensors")],
+        &mean,
+    )
+    .unwrap();
+    assert_eq!(parameters(&run.join("model.safetensors")), parameters(&mean));
+    // The averaged model is validated, and that is the score the run reports and logs last.
+    let reported = summary.last_validation.expect("a validation of the averaged model").small.unwrap();
+    let log = std::fs::read_to_string(run.join("metrics.csv")).unwrap();
+    let last: Vec<&str> = log.lines().last().unwrap().split(',').collect();
+    assert_eq!(last[6], format!("{:.3}", reported.d_mse), "{log}");
+    // More checkpoints to average than are kept is refused before training.
+    let bad = TrainConfig { average_checkpoints: 11, ..tiny(6) }.validate().unwrap_err().to_string();
+    assert!(bad.contains("average_checkpoints"), "{bad}");
+}

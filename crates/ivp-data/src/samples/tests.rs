@@ -394,3 +394,25 @@ fn synthetic_scenes_give_deterministic_samples() {
         assert_eq!(sample.mask.at(cu, cv), 1.0);
     }
 }
+
+#[test]
+fn clips_at_several_scales_are_drawn_per_clip_from_the_seed() {
+    let params = crate::scene::SceneParams { width: 32, height: 24, frames: 2, ..Default::default() };
+    let source = SyntheticSource::new(params).with_scales(&[1, 3]);
+    let sizes: Vec<(usize, usize)> = (0..16u64)
+        .map(|seed| {
+            let p = source.params_for(seed.wrapping_mul(0x9E37_79B9_7F4A_7C15));
+            (p.width, p.height)
+        })
+        .collect();
+    assert!(sizes.iter().all(|s| [(32, 24), (96, 72)].contains(s)), "{sizes:?}");
+    assert!(sizes.contains(&(32, 24)) && sizes.contains(&(96, 72)), "both scales are drawn: {sizes:?}");
+    // The clip of a seed is rendered at its scale, the same every time, and its name says so.
+    let seed = (0..64u64).find(|&s| source.params_for(s).width == 96).unwrap();
+    let clip = source.load(0, seed).unwrap();
+    assert_eq!(clip.size(), (96, 72));
+    assert_eq!(clip.frames, source.load(0, seed).unwrap().frames);
+    assert!(source.origin(0, seed).to_string_lossy().contains("96x72"));
+    // Without scales, the frames are the parameters' size.
+    assert_eq!(SyntheticSource::new(source.params().clone()).params_for(seed).width, 32);
+}

@@ -13,10 +13,10 @@ use glam::{DVec2, DVec3, Vec3};
 use ivp_core::Intrinsics;
 use rand::Rng;
 
+use super::description::{CameraPath, Light, Scene, SceneObject, SceneParams};
 use super::geometry::{Cylinder, Room, RoomFace, Shape, Sphere, YawedBox};
 use super::texture::{hsv_to_rgb, Pattern, Texture};
 use super::trajectory::{head_motion, CameraState};
-use super::{CameraPath, Light, Scene, SceneObject, SceneParams};
 
 const EYE_HEIGHT_M: RangeInclusive<f64> = 1.3..=1.8;
 /// The start view turns at most this far from the room's long axis (+y).

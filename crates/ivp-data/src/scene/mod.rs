@@ -13,6 +13,7 @@
 //!
 //! World axes: metres, z up, floor at z = 0 (cameras use OpenCV axes, see [`ivp_core::geometry::camera`]).
 
+mod description;
 pub mod geometry;
 mod layout;
 mod render;
@@ -22,95 +23,18 @@ pub mod trajectory;
 #[cfg(test)]
 mod tests;
 
-use std::ops::RangeInclusive;
 use std::path::{Path, PathBuf};
 
-use glam::Vec3;
 use ivp_core::{Intrinsics, WorldToCamera};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
 
 use crate::{write_clip, DataError, Frame, Result};
+pub use description::{CameraPath, Light, Scene, SceneObject, SceneParams};
 pub use geometry::{Cylinder, Room, RoomFace, Shape, Sphere, YawedBox};
 pub use texture::{Pattern, Texture};
 pub use trajectory::CameraState;
-
-/// What random clips look like.
-#[derive(Clone, Debug, PartialEq)]
-pub struct SceneParams {
-    pub width: usize,
-    pub height: usize,
-    /// Frames per clip.
-    pub frames: usize,
-    /// Multiplies the camera's translation and rotation per frame (1: a head-mounted display at
-    /// 30 fps, about 1-3 cm and 0.2-0.5 degrees; larger for low-frame-rate data like SceneNet).
-    pub motion_scale: f64,
-    /// Horizontal field of view in degrees, drawn per clip.
-    pub hfov_deg: RangeInclusive<f64>,
-    /// Number of objects, drawn per clip (fewer if some find no free place).
-    pub objects: RangeInclusive<usize>,
-    /// How many of the objects stand close to the camera, at [`SceneParams::near_distance`].
-    pub near_objects: usize,
-    /// Distance in metres from the camera's start to the nearest point of a near object.
-    pub near_distance: RangeInclusive<f64>,
-    /// Distance in metres from the camera's start to the far wall or backdrop, along its view.
-    pub background_distance: RangeInclusive<f64>,
-    /// Probability of open ground with a distant backdrop instead of a room.
-    pub open_ground_probability: f64,
-}
-
-impl Default for SceneParams {
-    fn default() -> Self {
-        Self {
-            width: 320,
-            height: 240,
-            frames: 12,
-            motion_scale: 1.0,
-            hfov_deg: 50.0..=75.0,
-            objects: 6..=12,
-            near_objects: 3,
-            near_distance: 0.8..=1.5,
-            background_distance: 4.0..=10.0,
-            open_ground_probability: 0.2,
-        }
-    }
-}
-
-/// The one light of a scene.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct Light {
-    /// Unit vector pointing towards the light.
-    pub direction: Vec3,
-    /// Brightness of a surface facing the light, on top of `ambient`.
-    pub intensity: f32,
-    /// Brightness of every surface.
-    pub ambient: f32,
-}
-
-/// A solid object with its texture.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct SceneObject {
-    pub shape: Shape,
-    pub texture: Texture,
-}
-
-/// A static scene: the room around everything, its objects and the light.
-#[derive(Clone, Debug, PartialEq)]
-pub struct Scene {
-    pub room: Room,
-    /// One texture per face, indexed by `RoomFace as usize`.
-    pub room_textures: [Texture; 6],
-    pub objects: Vec<SceneObject>,
-    pub light: Light,
-}
-
-/// The camera of a clip: intrinsics and one world-to-camera pose per frame.
-#[derive(Clone, Debug, PartialEq)]
-pub struct CameraPath {
-    pub intrinsics: Intrinsics,
-    pub poses: Vec<WorldToCamera>,
-}
 
 /// A rendered clip in memory.
 #[derive(Clone, Debug, PartialEq)]

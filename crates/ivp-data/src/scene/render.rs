@@ -13,8 +13,8 @@ use glam::{DVec4, Vec3, Vec3A};
 use ivp_core::{DepthMap, Intrinsics, RgbImage, WorldToCamera};
 use rayon::prelude::*;
 
+use super::description::Scene;
 use super::geometry::{Ray, RoomFace, ShapeSeenFrom};
-use super::Scene;
 use crate::Frame;
 
 /// Rows of samples within a pixel row, as offsets from the pixel centre: the colour samples'

@@ -9,7 +9,7 @@ use std::path::PathBuf;
 use crate::bench::{bench_infer, bench_train, InferCase, TrainCase};
 use crate::bench_frame::{bench_clip, bench_frame, FrameCase, FrameSource};
 use crate::checkpoint::check_depth_head_mult;
-use crate::cli::CoverageArgs;
+use crate::cli::coverage::CoverageArgs;
 
 #[derive(Subcommand)]
 pub enum BenchCommand {

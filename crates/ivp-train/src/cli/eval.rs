@@ -5,7 +5,7 @@ use std::path::PathBuf;
 use anyhow::Result;
 use clap::Args;
 
-use crate::cli::CoverageArgs;
+use crate::cli::coverage::CoverageArgs;
 use crate::eval::{build_methods, evaluate, format_table, write_json, MethodSpecs, DEFAULT_TARGETS};
 
 #[derive(Args)]

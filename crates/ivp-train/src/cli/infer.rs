@@ -8,7 +8,7 @@ use ivp_core::inference::ModelInfiller;
 use ivp_data::Clip;
 
 use crate::checkpoint::load_model;
-use crate::cli::CoverageArgs;
+use crate::cli::coverage::CoverageArgs;
 use crate::infer;
 use crate::progress::progress_bar;
 

@@ -33,7 +33,10 @@
 //! set (subnormals read and written as zero) on its thread, restored afterwards: the results are
 //! the same on any thread of any pool, and values that small carry nothing for training.
 
+mod geom;
 mod narrow;
+
+use geom::{flushing_denormals, Geom, SharedMut};
 
 use crate::nn::ops::{contiguous_values, profile};
 use std::cell::RefCell;
@@ -105,21 +108,6 @@ fn conv2d_with_tile(
     }
 }
 
-/// Shapes of one convolution.
-#[derive(Clone, Copy, Debug)]
-struct Geom {
-    batch: usize,
-    cin: usize,
-    h: usize,
-    w: usize,
-    cout: usize,
-    k: usize,
-    stride: usize,
-    pad: usize,
-    ho: usize,
-    wo: usize,
-}
-
 /// How a product is cut: tiles of `px` output pixels of one image, input channels in blocks of `cb`.
 /// An im2col tile is `cb k k` rows by `px` columns.
 #[derive(Clone, Copy, Debug)]
@@ -129,28 +117,6 @@ struct Tiling {
 }
 
 impl Geom {
-    fn new((batch, cin, h, w): (usize, usize, usize, usize), cout: usize, k: usize, stride: usize, pad: usize) -> Self {
-        let ho = (h + 2 * pad - k) / stride + 1;
-        let wo = (w + 2 * pad - k) / stride + 1;
-        Self { batch, cin, h, w, cout, k, stride, pad, ho, wo }
-    }
-
-    /// Rows of the im2col matrix, the depth of the forward product: Cin k k.
-    fn taps(&self) -> usize {
-        self.cin * self.k * self.k
-    }
-
-    /// Output pixels of one image.
-    fn pixels(&self) -> usize {
-        self.ho * self.wo
-    }
-
-    /// Input image `b` of `x` (Cin, H, W).
-    fn image<'a>(&self, x: &'a [f32], b: usize) -> &'a [f32] {
-        let len = self.cin * self.h * self.w;
-        &x[b * len..][..len]
-    }
-
     /// Tiles of about `tile_bytes` of im2col: all channels at once if that leaves at least
     /// [`MIN_TILE_PX`] pixels, else that many pixels and fewer channels. Tiles have at least
     /// `min_rows` output rows. Depends on the shapes only, never on the thread count.
@@ -374,28 +340,6 @@ pub(crate) fn add_product(
             Mat::new(rhs.as_ptr(), rhs_stride, 1),
         );
         matmul(m, n, k, dst, true, a, b)
-    }
-}
-
-/// Runs `f` with subnormal floats flushed to zero on this thread (see the module documentation).
-fn flushing_denormals<R>(f: impl FnOnce() -> R) -> R {
-    // SAFETY: the floating-point mode changes for this thread only and is restored when `f`
-    // returns (or unwinds). The code under it is the kernels' loops and gemm's, which LLVM cannot
-    // constant-fold across the change, and a flushed subnormal is a value of 0 to them.
-    unsafe { no_denormals::no_denormals(f) }
-}
-
-/// A raw output pointer that tiles of one parallel loop share; each writes its own part.
-#[derive(Clone, Copy)]
-struct SharedMut(*mut f32);
-// SAFETY: only used for writes to disjoint parts, as argued at each use.
-unsafe impl Send for SharedMut {}
-unsafe impl Sync for SharedMut {}
-
-impl SharedMut {
-    /// A method rather than field access, so that closures capture the Sync wrapper.
-    fn at(self, offset: usize) -> *mut f32 {
-        self.0.wrapping_add(offset)
     }
 }
 

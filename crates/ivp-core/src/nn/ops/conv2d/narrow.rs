@@ -17,7 +17,7 @@
 
 use rayon::prelude::*;
 
-use super::{flushing_denormals, Geom, SharedMut};
+use super::geom::{flushing_denormals, Geom, SharedMut};
 use lanes::{Lanes, LANES};
 
 /// Output rows per work item of the forward pass: the input rows it reads are padded once for
@@ -233,6 +233,9 @@ mod lanes {
     mod imp {
         use std::arch::x86_64::*;
 
+        // A path from the crate root: the layering scan reads `super::` as the file's parent.
+        use crate::nn::ops::conv2d::narrow::lanes::LANES;
+
         #[derive(Clone, Copy)]
         pub struct Lanes(__m256);
 
@@ -246,13 +249,13 @@ mod lanes {
             /// The first 8 values of `s` (panics if there are fewer).
             #[inline(always)]
             pub fn load(s: &[f32]) -> Self {
-                let s = &s[..super::LANES];
+                let s = &s[..LANES];
                 // SAFETY: `s` holds 8 readable f32; the load has no alignment requirement.
                 Self(unsafe { _mm256_loadu_ps(s.as_ptr()) })
             }
 
             #[inline(always)]
-            pub fn store(self, d: &mut [f32; super::LANES]) {
+            pub fn store(self, d: &mut [f32; LANES]) {
                 // SAFETY: `d` holds 8 writable f32; the store has no alignment requirement.
                 unsafe { _mm256_storeu_ps(d.as_mut_ptr(), self.0) }
             }
@@ -267,7 +270,7 @@ mod lanes {
             /// The sum of the lanes, in a fixed order (as the portable version).
             #[inline(always)]
             pub fn sum(self) -> f32 {
-                let mut d = [0f32; super::LANES];
+                let mut d = [0f32; LANES];
                 self.store(&mut d);
                 d.iter().sum()
             }
@@ -276,7 +279,7 @@ mod lanes {
 
     #[cfg(not(all(target_arch = "x86_64", target_feature = "avx2", target_feature = "fma")))]
     mod imp {
-        use super::LANES;
+        use crate::nn::ops::conv2d::narrow::lanes::LANES;
 
         #[derive(Clone, Copy)]
         pub struct Lanes([f32; LANES]);

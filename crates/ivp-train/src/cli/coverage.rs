@@ -1,0 +1,34 @@
+//! The flags every command that runs a model shares: how it covers a frame, and at what scale.
+
+use clap::Args;
+use ivp_core::inference::{Coverage, Scale, TileShape};
+
+/// How a trained model covers a frame: sparse tiles by default, `--dense` for one pass over the
+/// whole frame (for comparison; the results agree within the tolerance PERFORMANCE.md states).
+#[derive(Args, Clone, Copy, Debug)]
+pub struct CoverageArgs {
+    /// Run the network over the whole frame instead of only the tiles that hold disocclusions.
+    #[arg(long)]
+    pub dense: bool,
+    /// Side of the cells that sparse inference keeps, in pixels (a multiple of 16).
+    #[arg(long, default_value_t = TileShape::DEFAULT.core)]
+    pub tile_core: usize,
+    /// Context read around each cell, in pixels (a multiple of 16).
+    #[arg(long, default_value_t = TileShape::DEFAULT.margin)]
+    pub tile_margin: usize,
+    /// Shrink frames by this integer factor before the network and the temporal prior see them;
+    /// `auto` shrinks frames of 810 rows or more towards 540 rows (2 at 1080p).
+    #[arg(long, default_value_t = Scale::Auto)]
+    pub scale: Scale,
+}
+
+impl CoverageArgs {
+    pub fn coverage(&self) -> anyhow::Result<Coverage> {
+        if self.dense {
+            return Ok(Coverage::Dense);
+        }
+        let shape = TileShape::new(self.tile_core, self.tile_margin)
+            .map_err(|e| anyhow::anyhow!("--tile-core/--tile-margin: {e}"))?;
+        Ok(Coverage::Sparse(shape))
+    }
+}
