@@ -12,10 +12,10 @@ static GLOBAL: mimalloc::MiMalloc = mimalloc::MiMalloc;
 use criterion::{criterion_group, criterion_main, Criterion};
 use glam::{DMat4, DVec3};
 use ivp_core::geometry::{FrameView, NearestKnown};
-use ivp_core::inference::{plan_tiles, shrunk_temporal_prior, Coverage, NetworkFrame, NetworkPredictor, TileShape};
+use ivp_core::inference::{plan_tiles, Coverage, NetworkFrame, NetworkPredictor, TileShape};
 use ivp_core::infill::{classical_infiller, fill_new_regions, InfillContext, VectorPredictor};
 use ivp_core::nn::model::{IvpNet, ModelConfig, Variant};
-use ivp_core::prior::{background_depth_threshold, target_prior};
+use ivp_core::prior::{background_depth_threshold, scaled_target_prior, target_prior};
 use ivp_core::{relative_pose, warp_forward, DepthMap, Image, Intrinsics, RgbImage, VectorField, WorldToCamera};
 
 /// A wall with boxes in front of it, seen from a camera at `x` metres.
@@ -56,8 +56,9 @@ fn bench_stages(c: &mut Criterion) {
             image
         })
     });
-    group.bench_function("shrunk_temporal_prior_x2", |b| b.iter(|| shrunk_temporal_prior(&ctx, 2)));
-    let prior = shrunk_temporal_prior(&ctx, 2).expect("the clip has frame n - 2");
+    let scaled_prior = || scaled_target_prior(&view(0), &view(1), &frames[2].2, &k, &warp.holes, 2);
+    group.bench_function("scaled_target_prior_x2", |b| b.iter(scaled_prior));
+    let prior = scaled_prior();
     // One sparse pass at factor 2 without the network: the frame's blocks of holes, the tile
     // plan, every tile's windows and every core's vectors written back.
     group.bench_function("sparse_pass_x2_around_the_network", |b| {

@@ -4,6 +4,7 @@
 //! Layer: imports `geometry` only. [`target_prior`] is the one recipe of a target's prior, used by
 //! training samples (ivp-data) and by inference alike.
 
+use std::borrow::Cow;
 use std::collections::HashMap;
 
 use glam::DMat4;
@@ -11,9 +12,10 @@ use rayon::prelude::*;
 
 use crate::geometry::image::is_valid_depth;
 use crate::geometry::nearest::NearestKnown;
+use crate::geometry::shrink::{blocks_with, shrink_depth, shrink_image_at, shrink_intrinsics};
 use crate::geometry::{
-    relative_pose, splat_field, warp_forward, DepthMap, Direction, FrameView, Image, Intrinsics, Pixel, RgbImage,
-    VectorField, Warp, WorldToCamera,
+    relative_pose, splat_field, warp_forward, warp_known, within_reach, DepthMap, Direction, FrameView, HoleMask,
+    Image, Intrinsics, Pixel, RgbImage, VectorField, Warp, WorldToCamera,
 };
 
 /// Half the side of the patches compared by the fictitious-vector search (5x5 patches).
@@ -359,6 +361,55 @@ pub fn prior_from_last(
 ) -> VectorField {
     let vectors = estimate_fictitious_vectors(known_n, last.image);
     temporal_prior(&vectors, last.depth, k, &relative_pose(last.pose, target_pose), known_t)
+}
+
+/// [`target_prior`] computed on the frames shrunk by `factor`, kept at that scale: as a full-size
+/// field, each pixel takes `factor` times the prior of its block, and blocks with a hole take 0.
+/// `holes` are those of the warp `n -> t`. At factor 1 it is [`target_prior`]'s prior. This is
+/// the form the model reads at inference (`inference::ModelInfiller`).
+///
+/// Why: the prior's warps and searches cost as much as the rest of a 1080p frame together, while
+/// the network that reads it sees the frame shrunk anyway; measured on the shrunk frames, the
+/// prior also looks like the ones the network was trained with (frames of a few hundred rows).
+/// Only what the prior reads is shrunk: the depths of frames `n - 2` and `n` (warped whole), and
+/// the colours of frame `n` near the holes of the warp `n - 2 -> n` (the fictitious vectors'
+/// patches, [`GROUND_TRUTH_REACH`]); frame `n - 2`'s colours are not read at all.
+pub fn scaled_target_prior(
+    before_last: &FrameView<'_>,
+    last: &FrameView<'_>,
+    target_pose: &WorldToCamera,
+    intrinsics: &Intrinsics,
+    holes: &HoleMask,
+    factor: usize,
+) -> ScaledPrior {
+    let s = factor.max(1);
+    let (w, h) = (holes.width(), holes.height());
+    let known = holes.known();
+    let (depth_b, depth_n) = match s {
+        1 => (Cow::Borrowed(before_last.depth), Cow::Borrowed(last.depth)),
+        _ => {
+            let (b, n) = rayon::join(|| shrink_depth(before_last.depth, s), || shrink_depth(last.depth, s));
+            (Cow::Owned(b), Cow::Owned(n))
+        }
+    };
+    let k = shrink_intrinsics(intrinsics, s);
+    let known_n = warp_known(&depth_b, &k, &relative_pose(before_last.pose, last.pose));
+    let image_n = match s {
+        1 => Cow::Borrowed(last.image),
+        _ => {
+            let holes_n: Vec<bool> = known_n.iter().map(|&k| !k).collect();
+            let read = within_reach(&holes_n, depth_n.width(), depth_n.height(), GROUND_TRUTH_REACH);
+            Cow::Owned(shrink_image_at(last.image, s, Some(&read)))
+        }
+    };
+    let view_n = FrameView { image: &image_n, depth: &depth_n, pose: last.pose };
+    if s == 1 {
+        return ScaledPrior::full_size(prior_from_last(&known_n, &view_n, target_pose, &k, &known));
+    }
+    // A block is known when all its pixels are (as in NetworkFrame, where any hole makes a hole).
+    let coarse_known: Vec<bool> = blocks_with(w, h, s, &known, false).into_iter().map(|hole| !hole).collect();
+    let coarse = prior_from_last(&known_n, &view_n, target_pose, &k, &coarse_known);
+    ScaledPrior::scaled(coarse, s, w, h)
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -796,5 +847,30 @@ mod tests {
             })
         };
         assert_eq!(run(1), run(3));
+    }
+
+    #[test]
+    fn the_scaled_prior_is_the_training_prior_at_factor_one_and_zero_on_holes() {
+        use crate::test_scene::{intrinsics, render};
+        let k = intrinsics();
+        let frames: Vec<_> = [0.0, 0.2, 0.3].into_iter().map(render).collect();
+        let warped = warp_forward(&frames[1].0, &frames[1].1, &k, &relative_pose(&frames[1].2, &frames[2].2));
+        let view = |i: usize| FrameView { image: &frames[i].0, depth: &frames[i].1, pose: &frames[i].2 };
+        let known = warped.holes.known();
+        let scaled = |s: usize| scaled_target_prior(&view(0), &view(1), &frames[2].2, &k, &warped.holes, s).to_full();
+        // The training form (samples) and the inference form are one recipe: equal at factor 1.
+        let fine = target_prior(&view(0), &view(1), &frames[2].2, &k, &known).prior;
+        assert_eq!(scaled(1), fine);
+        let shrunk = scaled(2);
+        let mean_x = |field: &VectorField| {
+            let xs: Vec<f32> = field.pixels().iter().filter(|p| p[0] != 0.0).map(|p| p[0]).collect();
+            xs.iter().sum::<f32>() / xs.len().max(1) as f32
+        };
+        assert!(shrunk.pixels().iter().zip(&known).all(|(p, &k)| k || *p == [0.0, 0.0]));
+        // The box slides left in view: both priors point the same way, by about as far.
+        let (a, b) = (mean_x(&fine), mean_x(&shrunk));
+        assert!(a != 0.0 && b != 0.0 && a.signum() == b.signum(), "fine {a}, shrunk {b}");
+        assert!((b / a - 1.0).abs() < 0.5, "fine {a}, shrunk {b}");
+        assert!(shrunk.pixels().iter().flatten().all(|x| x.is_finite()));
     }
 }

@@ -7,6 +7,7 @@ pub mod holes;
 pub mod image;
 pub mod known_read;
 pub mod nearest;
+pub mod shrink;
 pub mod warp;
 
 pub use camera::{relative_pose, Intrinsics, WorldToCamera};

@@ -9,7 +9,7 @@ pub mod scaled;
 pub mod tiles;
 
 pub use predictor::{Coverage, NetworkPredictor};
-pub use scaled::{shrunk_temporal_prior, NetworkFrame, Scale};
+pub use scaled::{NetworkFrame, Scale};
 pub use tiles::{plan_tiles, Tile, TileShape};
 
 use std::time::{Duration, Instant};
@@ -22,7 +22,7 @@ use crate::infill::rules::fill_new_regions;
 use crate::infill::{InfillContext, InfillError, Infilled, Infiller};
 use crate::nn::model::{IvpNet, NetInput, Variant};
 use crate::nn::tensor::{from_tensor, to_tensor};
-use crate::prior::{warp_to_last, ScaledPrior};
+use crate::prior::{scaled_target_prior, warp_to_last, ScaledPrior};
 
 /// One frame's inputs to a network at test time.
 #[derive(Clone, Copy, Debug)]
@@ -189,7 +189,19 @@ impl ModelInfiller {
         let factor = self.scale.factor(h);
         // The prior is measured on frame n-2; without it (first frames) the model runs without.
         let (prior, last_warped) = match variant {
-            Variant::Full | Variant::NoDepth => (shrunk_temporal_prior(ctx, factor), None),
+            Variant::Full | Variant::NoDepth => {
+                let prior = ctx.before_last.as_ref().map(|before_last| {
+                    scaled_target_prior(
+                        before_last,
+                        &ctx.last,
+                        ctx.target_pose,
+                        ctx.intrinsics,
+                        &ctx.warped.holes,
+                        factor,
+                    )
+                });
+                (prior, None)
+            }
             Variant::Intensity => {
                 (None, ctx.before_last.as_ref().map(|b| warp_to_last(b, &ctx.last, ctx.intrinsics).image))
             }
