@@ -21,6 +21,8 @@
 //! The intensity-prediction ablation keeps this shape but reads `f_n`, `f^w_n`, the depth head's
 //! output and `f^w_{n+1}` (10 channels) and ends in 3 channels through a sigmoid: RGB for the holes.
 
+mod inference;
+
 use std::collections::HashMap;
 use std::fmt;
 use std::str::FromStr;
@@ -30,8 +32,6 @@ use candle_nn::{Init, VarBuilder, VarMap};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
-use crate::nn::ops::at_points::{decoder_step_at, pixels_read, scatter, BatchPixel};
-use crate::nn::ops::upsampled_conv::conv2d_of_upsampled;
 use crate::nn::ops::{conv2d, conv2d_relu, sample_bilinear, upsample_bilinear_to, upsample_concat};
 
 /// The encoder widths at width multiplier 1 (the paper's).
@@ -211,23 +211,6 @@ impl Conv {
         let kernel = self.weight.dim(3)?;
         conv2d_relu(x, &self.weight, Some(&self.bias), self.stride, kernel / 2)
     }
-
-    /// This convolution (stride 1) of `x` upsampled bilinearly by 2 ([`conv2d_of_upsampled`]).
-    fn of_upsampled(&self, x: &Tensor, relu: bool) -> Result<Tensor> {
-        conv2d_of_upsampled(x, &self.weight, &self.bias, relu)
-    }
-
-    /// A decoder step at `points` of the skip's size only: (N, Cout) ([`decoder_step_at`]).
-    fn values_at(&self, coarse: &Tensor, skip: &Tensor, points: &[BatchPixel], relu: bool) -> Result<Tensor> {
-        decoder_step_at(coarse, skip, &self.weight, &self.bias, relu, points)
-    }
-
-    /// [`Conv::values_at`] as a map of the skip's size, zero away from `points`.
-    fn forward_at(&self, coarse: &Tensor, skip: &Tensor, points: &[BatchPixel], relu: bool) -> Result<Tensor> {
-        let values = self.values_at(coarse, skip, points, relu)?;
-        let (b, _, h, w) = skip.dims4()?;
-        scatter(&values, points, (b, self.weight.dim(0)?, h, w))
-    }
 }
 
 /// Normalises the warped depth (0 in holes, in scene units) to (0, 1).
@@ -258,24 +241,6 @@ impl DepthHead {
         let (_, _, xh, xw) = x.dims4()?;
         let x = self.c3.forward_relu(&upsample_bilinear_to(&x, 2 * xh, 2 * xw)?)?;
         let x = self.c4.forward(&upsample_bilinear_to(&x, h, w)?)?;
-        candle_nn::ops::sigmoid(&x)
-    }
-
-    /// [`DepthHead::forward`] for inference, equal up to rounding: `c3` and the upsampling before
-    /// it in one step ([`conv2d_of_upsampled`]: half the multiply-adds, and no upsampled map of 32
-    /// channels), and `c4` too where its upsampling is by exactly 2 (maps of even sides, as tiles
-    /// are): c4 and its upsampling took 13.9 ms of a 1080p frame on one thread, now 6. No gradient.
-    pub fn infer(&self, depth: &Tensor) -> Result<Tensor> {
-        let (_, _, h, w) = depth.dims4()?;
-        let x = self.c1.forward_relu(depth)?;
-        let x = self.c2.forward_relu(&x)?;
-        let x = self.c3.of_upsampled(&x, true)?;
-        let (_, _, xh, xw) = x.dims4()?;
-        let x = if (2 * xh, 2 * xw) == (h, w) {
-            self.c4.of_upsampled(&x, false)?
-        } else {
-            self.c4.forward(&upsample_bilinear_to(&x, h, w)?)?
-        };
         candle_nn::ops::sigmoid(&x)
     }
 }
@@ -410,30 +375,6 @@ impl IvpNet {
         y.broadcast_mul(input.mask)
     }
 
-    /// [`IvpNet::masked_output`] at `points` only, before the mask: one row of output channels per
-    /// point, (N, C). For inference, where vectors are read at the pixels to predict only. The
-    /// encoder runs over the whole input; each decoder level only at the pixels that the points
-    /// read through the levels above it ([`pixels_read`]).
-    pub fn unmasked_output_at(&self, input: &NetInput<'_>, points: &[BatchPixel]) -> Result<Tensor> {
-        let [x1, x2, x3, x4, x5] = self.encode(input, true)?;
-        // The pixels of each decoder level that the points need, from the top level down.
-        let (b, _, h, w) = x1.dims4()?;
-        let hw = |t: &Tensor| -> Result<(usize, usize)> { Ok((t.dim(2)?, t.dim(3)?)) };
-        let (s2, s3, s4) = (hw(&x2)?, hw(&x3)?, hw(&x4)?);
-        let p8 = pixels_read(points, (h, w), (b, s2.0, s2.1));
-        let p7 = pixels_read(&p8, s2, (b, s3.0, s3.1));
-        let p6 = pixels_read(&p7, s3, (b, s4.0, s4.1));
-        let y = self.d6.forward_at(&x5, &x4, &p6, true)?;
-        let y = self.d7.forward_at(&y, &x3, &p7, true)?;
-        let y = self.d8.forward_at(&y, &x2, &p8, true)?;
-        let y = self.d9.values_at(&y, &x1, points, false)?;
-        if self.config.variant.predicts_vectors() {
-            Ok(y)
-        } else {
-            candle_nn::ops::sigmoid(&y)
-        }
-    }
-
     /// The predicted frame and vectors: the warped frame with its masked pixels replaced by the
     /// bilinear read at their vectors (ALGORITHMS.md §6.3, training form) or by the predicted RGB.
     pub fn forward(&self, input: &NetInput<'_>) -> Result<NetOutput> {
@@ -509,6 +450,7 @@ fn fnv1a(bytes: &[u8]) -> u64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::nn::ops::at_points::BatchPixel;
 
     fn inputs(b: usize, h: usize, w: usize, seed: u64) -> [Tensor; 6] {
         let r = |c: usize, s: u64| crate::nn::ops::test_util::random(&[b, c, h, w], seed * 10 + s);
