@@ -30,7 +30,7 @@ enum Task {
         /// Seeds: each variant is trained once per seed.
         #[arg(long, value_delimiter = ',', default_value = "0,1,2")]
         seeds: Vec<u64>,
-        /// Training steps per run (the default recipe's when not given: about 21 minutes each on
+        /// Training steps per run (the default recipe's when not given: about 13-19 minutes each on
         /// 2 cores).
         #[arg(long)]
         steps: Option<u64>,

@@ -35,7 +35,7 @@ pub struct TrainArgs {
     /// --width-mult; 0.5 makes the network cheaper per pixel (recipe: 1).
     #[arg(long)]
     depth_head_mult: Option<f64>,
-    /// Training steps (recipe: 5000, about 21 minutes on 2 cores).
+    /// Training steps (recipe: 5000, about 13 minutes on 2 cores).
     #[arg(long)]
     steps: Option<u64>,
     /// Crops per step (recipe: 16).
