@@ -360,12 +360,8 @@ fn evaluate_clip(
         let disocclusions = warp.holes.disocclusions();
 
         let mut predictions = Vec::with_capacity(methods.len());
-        let mut record = FrameRecord {
-            clip: name.to_string(),
-            target: t,
-            disocclusion_pixels: disocclusions.iter().filter(|&&d| d).count(),
-            d_mse: BTreeMap::new(),
-        };
+        let mut record =
+            FrameRecord { clip: name.to_string(), target: t, disocclusion_pixels: 0, d_mse: BTreeMap::new() };
         for (method, acc) in methods.iter().zip(acc.iter_mut()) {
             let prediction = match method {
                 Method::Internal(infiller) => {
@@ -403,6 +399,7 @@ fn evaluate_clip(
                 }
             };
             let scores = score_frame(&prediction, &truth.image, &disocclusions);
+            record.disocclusion_pixels = scores.disocclusion_pixels;
             record.d_mse.insert(method.name().to_string(), scores.d_mse);
             acc.add(&scores);
             predictions.push(prediction);
