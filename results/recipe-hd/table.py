@@ -4,8 +4,8 @@
 Usage: table.py NAME=SCORES_DIR[:RUN_DIR] ...
 SCORES_DIR holds dev12.json and hd_scale-*.json of one model; RUN_DIR (optional) its training run,
 whose metrics.csv gives the validation the run printed last. Prints markdown: per model, D-MSE and
-its ratio to fill on the 12 clips at 320x240 and on the 1080p clips at every scale scored, the worst
-1080p frame against fill, ms/frame; then mean +- sd over the models, the worst against the best,
+its ratio to fill on the 12 clips at 320x240 (with the worst clip and how many clips are worse than
+fill) and on the 1080p clips at every scale scored (the worst frame, every clip), ms/frame; then mean +- sd over the models, the worst against the best,
 and the rank agreement (Spearman) of the printed validation with the 12 clips and the 1080p clips.
 """
 import csv
@@ -78,8 +78,12 @@ def main(args):
         name, _, dirs = arg.partition("=")
         scores_dir, _, run_dir = dirs.partition(":")
         row = {"name": name, "hd": {}}
-        mname, m, fill = model_scores(load(os.path.join(scores_dir, "dev12.json")))
+        dev12 = load(os.path.join(scores_dir, "dev12.json"))
+        mname, m, fill = model_scores(dev12)
         row["dev12"] = (m["d_mse"], fill["d_mse"], m["ms_per_frame"])
+        clips = per_clip(dev12, mname)
+        worst = max(clips.items(), key=lambda kv: kv[1])
+        row["dev12_clips"] = (worst[0], worst[1], sum(v > 1 for v in clips.values()), len(clips))
         for path in sorted(glob.glob(os.path.join(scores_dir, "hd_scale-*.json"))):
             scale = path.rsplit("hd_scale-", 1)[1][:-5]
             scales.add(scale)
@@ -91,8 +95,8 @@ def main(args):
         rows.append(row)
     scales = sorted(scales, key=lambda s: (s != "auto", s))
 
-    head = "| model | 320x240, 12 clips: D-MSE (x fill) | ms |"
-    rule = "|---|---|---|"
+    head = "| model | 320x240, 12 clips: D-MSE (x fill) | worst clip (x fill) | clips worse than fill | ms |"
+    rule = "|---|---|---|---|---|"
     for s in scales:
         head += f" 1080p --scale {s}: D-MSE (x fill) | worst frame (x fill) | per clip (x fill) | ms |"
         rule += "---|---|---|---|"
@@ -102,7 +106,8 @@ def main(args):
     print(rule)
     for r in rows:
         d, f, ms = r["dev12"]
-        line = f'| {r["name"]} | {d:.1f} ({d / f:.3f}) | {ms:.1f} |'
+        wc, wr, worse, n = r["dev12_clips"]
+        line = f'| {r["name"]} | {d:.1f} ({d / f:.3f}) | {wr:.2f} ({wc}) | {worse} of {n} | {ms:.1f} |'
         for s in scales:
             if s in r["hd"]:
                 d, f, ms, (wr, wf), clips = r["hd"][s]
