@@ -207,7 +207,10 @@ fn write_through_temporary(path: &Path, bytes: &[u8], durable: bool) -> Result<(
         .create_new(true)
         .open(&tmp)
         .and_then(|mut file| file.write_all(bytes).and_then(|()| if durable { file.sync_all() } else { Ok(()) }))
-        .map_err(|e| DataError::io(&tmp, "cannot write temporary file", e))
+        .map_err(|e| match e.kind() {
+            std::io::ErrorKind::NotFound => DataError::io(path, "cannot write: its folder does not exist", e),
+            _ => DataError::io(&tmp, "cannot write temporary file", e),
+        })
         .and_then(|()| fs::rename(&tmp, path).map_err(|e| DataError::io(path, "cannot rename temporary file onto", e)))
         .and_then(|()| if durable { sync_folder_of(path) } else { Ok(()) });
     if result.is_err() {

@@ -157,13 +157,45 @@ pub fn load_checkpoint(path: &Path) -> Result<Checkpoint, CheckpointError> {
 
 /// Writes the model file of a checkpoint (or copies a model file), after checking that its
 /// parameters build the network its metadata describes. Several checkpoints (of one network) are
-/// averaged parameter by parameter, in the order given: the mean of the weights of the last steps
-/// of a run varies less from seed to seed than the last step's (results/recipe-hd/README.md).
+/// averaged parameter by parameter ([`averaged_model`]).
 pub fn export_model(checkpoints: &[PathBuf], out: &Path) -> Result<ModelConfig, CheckpointError> {
+    let model = averaged_model(checkpoints, out)?;
+    write(out, model.parameters, model_metadata(&model.config, MODEL_FORMAT, model.step))?;
+    Ok(model.config)
+}
+
+/// A model read back for export: its network, configuration, parameters (sorted by name) and the
+/// training step they are from, if recorded.
+pub struct ExportedModel {
+    pub net: IvpNet,
+    pub config: ModelConfig,
+    pub parameters: Vec<(String, Tensor)>,
+    pub step: Option<u64>,
+}
+
+impl ExportedModel {
+    /// What a model file's metadata says of it (MODEL.md), sorted by key.
+    pub fn metadata(&self) -> Vec<(String, String)> {
+        let mut metadata: Vec<_> = model_metadata(&self.config, MODEL_FORMAT, self.step).into_iter().collect();
+        metadata.sort();
+        metadata
+    }
+}
+
+/// The model of one checkpoint or model file, or the mean of several (of one network), parameter
+/// by parameter in the order given: the mean of the weights of the last steps of a run varies less
+/// from seed to seed than the last step's (results/recipe-hd/README.md). Every file is checked as
+/// [`load_model`] checks it, and so is the mean. `out` names the export in errors.
+pub fn averaged_model(checkpoints: &[PathBuf], out: &Path) -> Result<ExportedModel, CheckpointError> {
     let Some((first, rest)) = checkpoints.split_first() else {
         return Err(invalid(out, "no checkpoint to export"));
     };
-    let (_, config, mut sum, mut step) = read_model(first)?;
+    let (net, config, mut sum, mut step) = read_model(first)?;
+    if rest.is_empty() {
+        let mut parameters: Vec<(String, Tensor)> = sum.into_iter().collect();
+        parameters.sort_by(|a, b| a.0.cmp(&b.0));
+        return Ok(ExportedModel { net, config, parameters, step });
+    }
     for path in rest {
         let (_, other, tensors, other_step) = read_model(path)?;
         if other != config {
@@ -176,13 +208,14 @@ pub fn export_model(checkpoints: &[PathBuf], out: &Path) -> Result<ModelConfig, 
         step = step.max(other_step);
     }
     let count = checkpoints.len() as f64;
-    let mut tensors: Vec<(String, Tensor)> = sum
+    let mean: HashMap<String, Tensor> = sum
         .into_iter()
         .map(|(name, t)| Ok((name.clone(), (t / count).map_err(|e| invalid(out, format!("`{name}`: {e}")))?)))
         .collect::<Result<_, CheckpointError>>()?;
-    tensors.sort_by(|a, b| a.0.cmp(&b.0));
-    write(out, tensors, model_metadata(&config, MODEL_FORMAT, step))?;
-    Ok(config)
+    let net = network_from(out, &mean, config)?.detached();
+    let mut parameters: Vec<(String, Tensor)> = mean.into_iter().collect();
+    parameters.sort_by(|a, b| a.0.cmp(&b.0));
+    Ok(ExportedModel { net, config, parameters, step })
 }
 
 /// Reads a model file (or the parameters of a checkpoint) and builds the network for inference

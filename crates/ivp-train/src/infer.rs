@@ -7,8 +7,10 @@ use anyhow::{bail, Context, Result};
 use ivp_core::geometry::image::to_u8;
 use ivp_core::geometry::FrameView;
 use ivp_core::inference::{ModelInfiller, ModelPrediction};
-use ivp_core::infill::InfillContext;
-use ivp_core::{RgbImage, Warp};
+use ivp_core::infill::{classical_infiller, InfillContext};
+use ivp_core::nn::tensor::to_tensor;
+use ivp_core::prior::target_prior;
+use ivp_core::{DepthMap, RgbImage, Warp};
 use ivp_data::{write_gray_png, write_rgb_png, Clip, Frame};
 
 use crate::eval::warp_to_target;
@@ -37,6 +39,56 @@ pub fn predict_target(model: &ModelInfiller, clip: &Clip, t: usize) -> Result<(M
     };
     let prediction = model.predict(&ctx).with_context(|| format!("{}: target {t}", clip.path().display()))?;
     Ok((prediction, warp))
+}
+
+/// Writes what the network of `ivp infer --iterations 1` reads for target `t` of `clip` (at scale 1,
+/// in one dense pass), and what turns its vectors into the predicted frame, as one safetensors file
+/// of (1, C, H, W) f32 tensors: the graph's inputs `prior`, `depth` and `hole` (MODEL.md), the
+/// warped frame `warped` (0 in holes), `known` (1 on the pixels the warp covered), `fill` (the `fill`
+/// method's frame: where a vector reads nothing, even walked, the pixel takes its value) and the
+/// target frame `truth`. `examples/onnx/run_onnx.py` infills and scores from it.
+pub fn write_network_inputs(clip: &Clip, t: usize, path: &Path) -> Result<()> {
+    if t < 3 || t >= clip.len() {
+        bail!(
+            "{}: target {t} needs frames {}..={t} (the prior reads frame t-3)",
+            clip.path().display(),
+            t.saturating_sub(3)
+        );
+    }
+    let (last, before_last) = (clip.load_frame(t - 1)?, clip.load_frame(t - 3)?);
+    let warp = warp_to_target(clip, &last, t);
+    let ctx = crate::eval::target_context(clip, [&before_last, &last], t, &warp, None);
+    let known = warp.holes.known();
+    let before_last_view = ctx.before_last.as_ref().expect("target_context gives frame t-3");
+    let prior = target_prior(before_last_view, &ctx.last, ctx.target_pose, ctx.intrinsics, &known).prior;
+    // The iterative infilling's depth input: 0 on every pixel not known yet.
+    let depth = DepthMap::from_fn(warp.depth.width(), warp.depth.height(), |x, y| {
+        let i = y * warp.depth.width() + x;
+        [if known[i] { warp.depth.pixels()[i][0] } else { 0.0 }]
+    });
+    let as_map = |mask: &[bool]| {
+        DepthMap::from_fn(warp.depth.width(), warp.depth.height(), |x, y| {
+            [f32::from(u8::from(mask[y * warp.depth.width() + x]))]
+        })
+    };
+    let fill = classical_infiller("fill").expect("`fill` is a classical method").infill(&ctx)?.image;
+    let truth = clip.load_frame(t)?.image;
+    let tensors = [
+        ("prior", to_tensor(&prior)?),
+        ("depth", to_tensor(&depth)?),
+        ("hole", to_tensor(&as_map(&warp.holes.disocclusions()))?),
+        ("warped", to_tensor(&warp.image)?),
+        ("known", to_tensor(&as_map(&known))?),
+        ("fill", to_tensor(&fill)?),
+        ("truth", to_tensor(&truth)?),
+    ];
+    let metadata = std::collections::HashMap::from([
+        ("clip".to_string(), clip.path().display().to_string()),
+        ("target".to_string(), t.to_string()),
+    ]);
+    let bytes = safetensors::serialize(tensors, Some(metadata))?;
+    ivp_data::write_atomically(path, &bytes)?;
+    Ok(())
 }
 
 /// The files `ivp infer` writes, as written.

@@ -14,6 +14,7 @@
 //! - `validation`: the fixed validation frames of a run (generated, 320x240 and 1080p), scored the
 //!   way `eval` scores.
 //! - `checkpoint`: model files and checkpoints, saved and strictly loaded.
+//! - `onnx`: the network of a model file as an ONNX graph (`ivp export --onnx`).
 //! - `demo`: `ivp demo`'s decisions: reuse or train, which clips to score on, which methods.
 //! - `infer`: a trained model on one target (`ivp infer`) or on every other frame (`ivp upsample`).
 //! - `bench`: one training step or one inference timed on random inputs (`ivp bench train|infer`).
@@ -34,6 +35,7 @@ pub mod export_warps;
 pub mod guide;
 pub mod infer;
 pub mod metrics_csv;
+pub mod onnx;
 pub mod plot;
 pub mod progress;
 pub mod sheet;

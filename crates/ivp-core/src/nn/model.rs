@@ -211,6 +211,24 @@ impl Conv {
         let kernel = self.weight.dim(3)?;
         conv2d_relu(x, &self.weight, Some(&self.bias), self.stride, kernel / 2)
     }
+
+    /// The weight (outputs, inputs, kernel, kernel).
+    pub fn weight(&self) -> &Tensor {
+        &self.weight
+    }
+
+    pub fn bias(&self) -> &Tensor {
+        &self.bias
+    }
+
+    pub fn stride(&self) -> usize {
+        self.stride
+    }
+
+    /// The zero padding on every side: `kernel / 2`.
+    pub fn padding(&self) -> usize {
+        self.weight.dims()[3] / 2
+    }
 }
 
 /// Normalises the warped depth (0 in holes, in scene units) to (0, 1).
@@ -231,6 +249,11 @@ impl DepthHead {
             c3: Conv::new(vb.pp("c3"), c[1], c[2], 7, 1)?,
             c4: Conv::new(vb.pp("c4"), c[2], 1, 7, 1)?,
         })
+    }
+
+    /// `c1 .. c4`, in order.
+    pub fn layers(&self) -> [&Conv; 4] {
+        [&self.c1, &self.c2, &self.c3, &self.c4]
     }
 
     /// `depth` (B, 1, H, W) to (B, 1, H, W) in (0, 1).
@@ -321,6 +344,21 @@ impl IvpNet {
 
     pub fn config(&self) -> ModelConfig {
         self.config
+    }
+
+    /// The depth head; `None` for the `no-depth` variant.
+    pub fn depth_head(&self) -> Option<&DepthHead> {
+        self.depth.as_ref()
+    }
+
+    /// `e1 .. e5`, in order.
+    pub fn encoder(&self) -> [&Conv; 5] {
+        [&self.e1, &self.e2, &self.e3, &self.e4, &self.e5]
+    }
+
+    /// `d6 .. d9`, in order.
+    pub fn decoder(&self) -> [&Conv; 4] {
+        [&self.d6, &self.d7, &self.d8, &self.d9]
     }
 
     /// The same network on plain tensors instead of variables, for inference: its outputs do not

@@ -46,6 +46,10 @@ pub struct InferArgs {
     /// Output folder: infilled.png, holes.png, vectors.png, error.png.
     #[arg(long)]
     out: PathBuf,
+    /// Also write OUT/network_inputs.safetensors: the inputs of the exported ONNX graph for this
+    /// target and what infills and scores from its vectors (MODEL.md, examples/onnx).
+    #[arg(long)]
+    network_inputs: bool,
     #[command(flatten)]
     model: ModelArgs,
 }
@@ -66,6 +70,11 @@ pub fn run_infer(args: InferArgs) -> Result<()> {
     let model = args.model.infiller()?;
     let clip = Clip::open(&args.clip)?;
     let outputs = infer::run_infer(&model, &clip, args.target, &args.out)?;
+    if args.network_inputs {
+        let path = args.out.join("network_inputs.safetensors");
+        infer::write_network_inputs(&clip, args.target, &path)?;
+        println!("network inputs: {}", path.display());
+    }
     for f in &outputs.files {
         println!("wrote {}", f.display());
     }

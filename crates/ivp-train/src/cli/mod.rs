@@ -47,7 +47,7 @@ pub enum Command {
     Demo(train::DemoArgs),
     /// Train a network from scratch (or resume a run) on generated scenes or a dataset.
     Train(train::TrainArgs),
-    /// Write the model file (weights and configuration) of a training checkpoint.
+    /// Write the model file (weights and configuration) of a training checkpoint, or its ONNX graph.
     Export(train::ExportArgs),
     /// Predict one target frame of a clip with a trained model and write images of the result.
     Infer(infer::InferArgs),

@@ -12,6 +12,7 @@ use crate::checkpoint::export_model;
 use crate::demo::{demo_config, demo_methods, evaluation_data, model_path, plan_training, DemoTraining};
 use crate::distributed::{broadcast_from_root, ProcessGroup, SingleProcess};
 use crate::eval::{evaluate, format_table, DEFAULT_TARGETS};
+use crate::onnx::{export_onnx, OPSET};
 use crate::train::{train, train_on, RunOptions, TrainConfig};
 
 #[derive(Args)]
@@ -83,14 +84,19 @@ pub struct DemoArgs {
 }
 
 #[derive(Args)]
+#[command(group(clap::ArgGroup::new("output").required(true).multiple(true).args(["out", "onnx"])))]
 pub struct ExportArgs {
     /// A checkpoint (RUN_DIR/checkpoints/step_*.safetensors) or a model file; with several
     /// (`--checkpoint A B ...`), the parameters of all of them are averaged.
     #[arg(long, required = true, num_args = 1..)]
     checkpoint: Vec<PathBuf>,
-    /// The model file to write.
+    /// The model file (safetensors) to write.
     #[arg(long)]
-    out: PathBuf,
+    out: Option<PathBuf>,
+    /// The ONNX graph to write (vector variants: inputs `prior`, `depth`, `hole`; output
+    /// `vectors`; opset 17; see MODEL.md).
+    #[arg(long)]
+    onnx: Option<PathBuf>,
 }
 
 /// `ivp train`, in one process or (with the `mpi` feature, under `mpirun` or `srun`) as one rank of
@@ -232,11 +238,17 @@ pub fn run_demo(args: DemoArgs, progress: bool) -> Result<()> {
 }
 
 pub fn run_export(args: ExportArgs) -> Result<()> {
-    let config = export_model(&args.checkpoint, &args.out)?;
     let averaged = match args.checkpoint.len() {
         1 => String::new(),
         n => format!(" (the mean of {n} checkpoints)"),
     };
-    println!("exported {config}{averaged} to {}", args.out.display());
+    if let Some(out) = &args.out {
+        let config = export_model(&args.checkpoint, out)?;
+        println!("exported {config}{averaged} to {}", out.display());
+    }
+    if let Some(out) = &args.onnx {
+        let config = export_onnx(&args.checkpoint, out)?;
+        println!("exported {config}{averaged} to {} (ONNX opset {OPSET})", out.display());
+    }
     Ok(())
 }

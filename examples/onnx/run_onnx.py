@@ -1,0 +1,106 @@
+"""Runs ivp's exported ONNX graph with onnxruntime and scores it as `ivp eval --iterations 1` does.
+
+    python3 examples/onnx/run_onnx.py MODEL.onnx INPUTS.safetensors [INPUTS.safetensors ...]
+
+Each INPUTS file is what `ivp infer --network-inputs` writes for one target (MODEL.md, "Running
+the graph"): the graph's inputs `prior`, `depth`, `hole`, and `warped`, `known`, `fill`, `truth`.
+The graph gives the vectors; everything after it is here, in numpy, as ivp does it with one
+iteration (ALGORITHMS.md §6.3, §6.5):
+
+- each disocclusion pixel p reads the warped frame at p + v, bilinearly over the known corners
+  only (the weights renormalised over them);
+- a vector that reads nothing is walked along its direction, magnitudes 1..100, and the first
+  magnitude that reads a known pixel is taken;
+- a pixel that even the walk cannot fill takes the `fill` rule's value;
+- the frame is quantised to 8 bits, and D-MSE is the mean squared error on 0..255 over the
+  disocclusion pixels and the three channels; a clip's D-MSE is the mean over its targets.
+
+Needs numpy, onnxruntime and safetensors (pip install numpy onnxruntime safetensors).
+"""
+
+import sys
+
+import numpy as np
+import onnxruntime as ort
+from safetensors.numpy import load_file
+
+MAX_WALK_MAGNITUDE = 100
+
+
+def known_read(image, known, x, y):
+    """Colour (C, N) read at float positions (x, y) over the known corners only, and whether any
+    corner was known (N,)."""
+    channels, height, width = image.shape
+    finite = np.isfinite(x) & np.isfinite(y)
+    x, y = np.where(finite, x, 0).astype(np.float32), np.where(finite, y, 0).astype(np.float32)
+    x0, y0 = np.floor(x), np.floor(y)
+    ax, ay = x - x0, y - y0
+    total = np.zeros(x.shape, np.float32)
+    colour = np.zeros((channels,) + x.shape, np.float32)
+    for dx, dy, weight in ((0, 0, (1 - ax) * (1 - ay)), (1, 0, ax * (1 - ay)), (0, 1, (1 - ax) * ay), (1, 1, ax * ay)):
+        cx, cy = x0 + dx, y0 + dy
+        inside = finite & (weight > 0) & (cx >= 0) & (cx < width) & (cy >= 0) & (cy < height)
+        ix, iy = np.where(inside, cx, 0).astype(np.int64), np.where(inside, cy, 0).astype(np.int64)
+        weight = np.where(inside & known[iy, ix], weight, 0).astype(np.float32)
+        total += weight
+        colour += weight * image[:, iy, ix]
+    found = total > 0
+    return colour / np.where(found, total, 1), found
+
+
+def infill_once(vectors, warped, known, fill, hole):
+    """The predicted frame (3, H, W) from one set of vectors (2, H, W)."""
+    frame = warped.copy()
+    ys, xs = np.nonzero(hole)
+    # Positions in f32, as ivp adds them.
+    fx, fy = xs.astype(np.float32), ys.astype(np.float32)
+    a, b = vectors[0, ys, xs], vectors[1, ys, xs]
+    colour, found = known_read(warped, known, fx + a, fy + b)
+    frame[:, ys[found], xs[found]] = colour[:, found]
+    # Walk the vectors that read nothing along their direction.
+    todo = ~found
+    length = np.hypot(a.astype(np.float64), b.astype(np.float64))
+    walkable = todo & np.isfinite(length) & (length > 0)
+    da, db = np.where(walkable, a / np.where(walkable, length, 1), 0), np.where(walkable, b / np.where(walkable, length, 1), 0)
+    for m in range(1, MAX_WALK_MAGNITUDE + 1):
+        if not walkable.any():
+            break
+        idx = np.nonzero(walkable)[0]
+        wx, wy = (m * da[idx]).astype(np.float32), (m * db[idx]).astype(np.float32)
+        colour, found = known_read(warped, known, fx[idx] + wx, fy[idx] + wy)
+        done = idx[found]
+        frame[:, ys[done], xs[done]] = colour[:, found]
+        walkable[done] = False
+        todo[done] = False
+    # What even the walk could not fill takes the `fill` rule's value.
+    frame[:, ys[todo], xs[todo]] = fill[:, ys[todo], xs[todo]]
+    return frame
+
+
+def d_mse(frame, truth, hole):
+    quantised = np.round(np.clip(frame, 0, 1) * 255) / 255
+    diff = (quantised.astype(np.float64) - truth.astype(np.float64)) * 255
+    mask = hole.astype(bool)
+    return float((diff[:, mask] ** 2).sum() / (3 * mask.sum())) if mask.any() else None
+
+
+def main():
+    if len(sys.argv) < 3:
+        sys.exit(__doc__)
+    session = ort.InferenceSession(sys.argv[1], providers=["CPUExecutionProvider"])
+    scores = []
+    for path in sys.argv[2:]:
+        t = load_file(path)
+        (vectors,) = session.run(["vectors"], {name: t[name] for name in ("prior", "depth", "hole")})
+        hole = t["hole"][0, 0] > 0
+        frame = infill_once(vectors[0], t["warped"][0], t["known"][0, 0] > 0, t["fill"][0], hole)
+        score = d_mse(frame, t["truth"][0], hole)
+        print(f"{path}: {hole.sum()} disocclusion pixels, D-MSE {score if score is None else round(score, 2)}")
+        if score is not None:
+            scores.append(score)
+    if scores:
+        print(f"mean D-MSE over {len(scores)} targets: {np.mean(scores):.2f}")
+
+
+if __name__ == "__main__":
+    main()
