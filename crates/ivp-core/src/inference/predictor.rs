@@ -204,7 +204,7 @@ impl VectorPredictor for NetworkPredictor<'_> {
         let tiles = match self.coverage {
             Coverage::Dense => dense(),
             Coverage::Sparse(shape) => {
-                let tiles = plan_tiles(whole.width, whole.height, frame.holes(), shape);
+                let tiles = plan_tiles(whole.width, whole.height, frame.holes(), shape.shrunk_by(self.factor));
                 if tiles.iter().map(|t| t.input.area()).sum::<usize>() >= whole.area() {
                     self.dense_passes.fetch_add(1, Ordering::Relaxed);
                     dense()

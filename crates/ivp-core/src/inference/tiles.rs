@@ -17,7 +17,8 @@ use crate::geometry::Rect;
 /// Tiles start on multiples of this: the U-Net halves its maps four times.
 pub const TILE_ALIGN: usize = 16;
 
-/// The shape of the tiles of sparse inference, in pixels.
+/// The shape of the tiles of sparse inference, in pixels of the frame as given (a frame shrunk
+/// before the network sees it reads tiles of [`TileShape::shrunk_by`] its factor).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct TileShape {
     /// Side of the cells whose vectors a tile keeps.
@@ -27,10 +28,11 @@ pub struct TileShape {
 }
 
 impl TileShape {
-    /// Cells of 32 pixels with 32 pixels of context: the fastest shape whose vectors agree with a
-    /// dense pass within 0.5 px of the frame the network sees at 99% of the disocclusion pixels
-    /// on the Blender clips, at 320x240 and at 1080p shrunk by 2 (PERFORMANCE.md, "Choosing the
-    /// tile shape").
+    /// Cells of 32 pixels with 32 pixels of context, in pixels of the frame as given: at 320x240
+    /// the vectors agree with a dense pass within 0.5 px at 99.9% of the disocclusion pixels; at
+    /// 1080p, shrunk by 2, the network reads cells of 16 with 16 of context, half the pixels of
+    /// 32 and 32 there, for the same D-MSE over three seeds on the Blender clips (PERFORMANCE.md,
+    /// "Choosing the tile shape").
     pub const DEFAULT: TileShape = TileShape { core: 32, margin: 32 };
 
     /// A shape whose core (at least 16) and margin are multiples of [`TILE_ALIGN`].
@@ -41,6 +43,15 @@ impl TileShape {
             ));
         }
         Ok(Self { core, margin })
+    }
+}
+
+impl TileShape {
+    /// This shape in pixels of the frame shrunk by `factor`: each side divided by it and rounded
+    /// up to a multiple of [`TILE_ALIGN`] (the core to at least one).
+    pub fn shrunk_by(self, factor: usize) -> TileShape {
+        let shrink = |side: usize| side.div_ceil(factor.max(1)).next_multiple_of(TILE_ALIGN);
+        TileShape { core: shrink(self.core).max(TILE_ALIGN), margin: shrink(self.margin) }
     }
 }
 
@@ -259,5 +270,18 @@ mod tests {
             assert!(i.x <= c.x.saturating_sub(32) && i.y <= c.y.saturating_sub(32));
             assert!(i.x + i.width >= (c.x + c.width + 32).min(w) && i.y + i.height >= (c.y + c.height + 32).min(h));
         }
+    }
+
+    #[test]
+    fn a_shape_shrinks_with_the_frame_to_multiples_of_the_alignment() {
+        let shape = TileShape::DEFAULT;
+        assert_eq!(shape.shrunk_by(1), shape);
+        assert_eq!(shape.shrunk_by(0), shape, "factor 0 reads as 1");
+        assert_eq!(shape.shrunk_by(2), TileShape { core: 16, margin: 16 });
+        // 32 / 3 = 10.7 rounds up to one alignment step; a margin of 0 stays 0.
+        assert_eq!(shape.shrunk_by(3), TileShape { core: 16, margin: 16 });
+        assert_eq!(TileShape::new(64, 0).unwrap().shrunk_by(2), TileShape { core: 32, margin: 0 });
+        assert_eq!(TileShape::new(96, 48).unwrap().shrunk_by(2), TileShape { core: 48, margin: 32 });
+        assert_eq!(TileShape::new(16, 16).unwrap().shrunk_by(4), TileShape { core: 16, margin: 16 });
     }
 }

@@ -10,10 +10,12 @@ pub struct CoverageArgs {
     /// Run the network over the whole frame instead of only the tiles that hold disocclusions.
     #[arg(long)]
     pub dense: bool,
-    /// Side of the cells that sparse inference keeps, in pixels (a multiple of 16).
+    /// Side of the cells that sparse inference keeps, in pixels of the frame as given (a multiple
+    /// of 16; a frame shrunk by --scale reads cells shrunk with it, rounded up to 16).
     #[arg(long, default_value_t = TileShape::DEFAULT.core)]
     pub tile_core: usize,
-    /// Context read around each cell, in pixels (a multiple of 16).
+    /// Context read around each cell, in pixels of the frame as given (a multiple of 16; shrunk
+    /// with the frame like --tile-core).
     #[arg(long, default_value_t = TileShape::DEFAULT.margin)]
     pub tile_margin: usize,
     /// Shrink frames by this integer factor before the network and the temporal prior see them;
