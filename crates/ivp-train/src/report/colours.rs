@@ -33,16 +33,23 @@ pub fn error_colour(squared_error: f32) -> [f32; 3] {
     [0, 1, 2].map(|c| a[c] + f * (b[c] - a[c]))
 }
 
-/// An error map: each disocclusion pixel in its error's colour, the other pixels the truth
-/// darkened to a quarter (context: the scores are of the disocclusions).
+/// An error map: each disocclusion pixel in its error's colour, the other pixels the truth in
+/// light grey (context only: the scores are of the disocclusions). The scale's colours are dark
+/// to bright, so on a light grey ground even an exact (black) disocclusion stands out.
 pub fn error_map(errors: &[f32], disocclusions: &[bool], truth: &RgbImage) -> RgbImage {
     let pixels = errors
         .iter()
         .zip(disocclusions)
         .zip(truth.pixels())
-        .map(|((&e, &hole), t)| if hole { error_colour(e) } else { t.map(|c| c * 0.25) })
+        .map(|((&e, &hole), t)| if hole { error_colour(e) } else { context_grey(*t) })
         .collect();
     Image::from_pixels(truth.width(), truth.height(), pixels)
+}
+
+/// A known pixel of an error map: its lightness squeezed into light greys.
+fn context_grey([r, g, b]: [f32; 3]) -> [f32; 3] {
+    let lightness = (0.2126 * r + 0.7152 * g + 0.0722 * b).clamp(0.0, 1.0);
+    [0.6 + 0.3 * lightness; 3]
 }
 
 /// `image` with its disocclusions in [`HOLE_COLOUR`].
@@ -123,10 +130,10 @@ mod tests {
 
     #[test]
     fn error_maps_colour_disocclusions_only() {
-        let truth = RgbImage::filled(2, 1, [0.8; 3]);
+        let truth = RgbImage::filled(2, 1, [1.0; 3]);
         let map = error_map(&[4096.0, 4096.0], &[true, false], &truth);
         assert_eq!(map.get(0, 0), ERROR_STOPS[4]);
-        assert_eq!(map.get(1, 0), [0.2; 3]);
+        assert!(map.get(1, 0).iter().all(|&c| (c - 0.9).abs() < 1e-6), "known pixels are light grey");
         assert_eq!(mark_holes(&truth, &[false, true]).get(1, 0), HOLE_COLOUR);
     }
 

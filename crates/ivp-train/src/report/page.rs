@@ -247,7 +247,7 @@ fn how_to_read(collected: &ReportCollector) -> String {
         "<p class=\"legend\"><b>Error maps</b> (one scale for every method and frame): absolute error \
          per disocclusion pixel (root of the mean over the channels of the squared error, 8-bit \
          levels) from 0 <img src=\"{}\" alt=\"error scale\" width=\"{ERROR_LEGEND_WIDTH}\" height=\"12\"> \
-         {ERROR_SCALE_MAX:.0} and above; other pixels show the truth, darkened.<br>\
+         {ERROR_SCALE_MAX:.0} and above; the other pixels show the truth in light grey.<br>\
          <b>Vectors</b> (methods that fill by vectors): the vector each disocclusion pixel was filled \
          with, hue its direction, saturation its length up to the longest vector of the region \
          (given under it); white is no vector. <img src=\"{}\" alt=\"vector colours\" \
