@@ -80,7 +80,8 @@ pub fn run_eval(args: EvalArgs, progress: bool) -> Result<()> {
     }
     if let Some(dir) = &args.report {
         let context = PageContext {
-            command: command_line(std::iter::once("ivp".to_string()).chain(std::env::args().skip(1))),
+            // The program as invoked (target/release/ivp, or ivp on the PATH): the build is part of the times.
+            command: command_line(std::env::args()),
             machine: describe_machine(),
             seconds,
             charts: false,

@@ -391,3 +391,33 @@ fn region_table(f: usize, k: usize, crops: &crate::report::collect::RegionCrops,
     html.push_str("</table>\n");
     html
 }
+
+#[cfg(test)]
+mod tests {
+    use std::collections::BTreeMap;
+
+    use super::*;
+
+    fn info(name: &str, uses_ground_truth: bool) -> MethodInfo {
+        MethodInfo { name: name.to_string(), uses_ground_truth, is_model: name.starts_with('m') }
+    }
+
+    #[test]
+    fn command_lines_quote_what_a_shell_would_split() {
+        let args = ["ivp", "--data", "my clips", "it's", "a=b,c"].map(String::from);
+        assert_eq!(command_line(args.into_iter()), r"ivp --data 'my clips' 'it'\''s' a=b,c");
+        assert_eq!(escape("<a href=\"x\">&'"), "&lt;a href=&quot;x&quot;&gt;&amp;&#39;");
+    }
+
+    #[test]
+    fn the_spread_leaves_out_baselines_and_references() {
+        let scores = [("copy", 5000.0), ("warp", 9000.0), ("oracle", 10.0), ("fill", 400.0), ("m1", 200.0)];
+        let d_mse: BTreeMap<String, Option<f64>> = scores.iter().map(|(n, d)| (n.to_string(), Some(*d))).collect();
+        let record = FrameRecord { clip: "c".into(), target: 6, disocclusion_pixels: 9, d_mse };
+        let methods: Vec<MethodInfo> = scores.iter().map(|(n, _)| info(n, *n == "oracle")).collect();
+        assert_eq!(spread(&record, &methods), Some(2.0), "fill over m1 only");
+        assert_eq!(spread(&record, &methods[..4]), None, "one method that infills");
+        assert_eq!(ratio_to_fill(&record, "m1"), Some(0.5));
+        assert_eq!(ratio_to_fill(&record, "absent"), None);
+    }
+}
