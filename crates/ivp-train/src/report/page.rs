@@ -6,11 +6,20 @@ use std::fmt::Write as _;
 
 use crate::eval::{table_cells, table_footer, EvalReport, FrameRecord, TABLE_COLUMNS};
 use crate::report::charts::SIZE as CHART_SIZE;
-use crate::report::collect::{FrameSummary, MethodInfo, ReportCollector};
+use crate::report::collect::{FrameSummary, MethodInfo, RegionCrops, ReportCollector};
 use crate::report::colours::{longest_vector, ERROR_SCALE_MAX};
 
-/// How many times crops are magnified on the page (nearest neighbour, by the browser).
-pub const MAGNIFY: usize = 3;
+/// The most crops are magnified on the page (nearest neighbour, by the browser).
+pub const MAX_MAGNIFICATION: usize = 3;
+
+/// The width a row of crops should fit: a window 1280 pixels wide, less the margins.
+const ROW_WIDTH: usize = 1200;
+
+/// How many times crops `crop_width` wide are magnified so that a row of `columns` of them fits
+/// [`ROW_WIDTH`] (at least 1, at most [`MAX_MAGNIFICATION`]): with many methods, less.
+pub fn magnification(columns: usize, crop_width: usize) -> usize {
+    (ROW_WIDTH / (columns.max(1) * (crop_width + 4)).max(1)).clamp(1, MAX_MAGNIFICATION)
+}
 
 /// Width of the error scale's legend image, in pixels.
 pub const ERROR_LEGEND_WIDTH: usize = 256;
@@ -151,7 +160,7 @@ code{background:#f4f4f4;padding:1px 4px;word-break:break-all}\
 .frame{border-top:2px solid #888;margin-top:18px;padding-top:6px}\
 .frame-head{display:flex;gap:24px;align-items:flex-start;flex-wrap:wrap}\
 .better{background:#d4f4d4}.worse{background:#f8d0d0}\
-.crops td{text-align:center;vertical-align:top;padding:2px;font-size:13px}\
+.crops{display:block;overflow-x:auto}.crops td{text-align:center;vertical-align:top;padding:2px;font-size:13px}\
 .crops th{font-size:13px;font-weight:normal;background:none;text-align:center}\
 .crops img,.legend img{image-rendering:pixelated}\
 .rowlabel{writing-mode:vertical-rl;transform:rotate(180deg);font-size:12px;color:#555}\
@@ -189,11 +198,13 @@ pub fn render(report: &EvalReport, collected: &ReportCollector, context: &PageCo
             h = CHART_SIZE.1
         );
     }
-    html.push_str(&how_to_read(collected));
+    // A row of crops: the warped view, every method and the truth.
+    let magnify = magnification(methods.len() + 2, collected.options.window);
+    html.push_str(&how_to_read(collected, magnify));
     html.push_str(&order_control(methods));
     html.push_str("<div id=\"frames\">\n");
     for (f, frame) in collected.frames.iter().enumerate() {
-        html.push_str(&frame_section(f, frame, methods));
+        html.push_str(&frame_section(f, frame, methods, magnify));
     }
     let _ = write!(html, "</div>\n<script>{SCRIPT}</script>\n</body></html>\n");
     html
@@ -221,7 +232,7 @@ fn scores_table(report: &EvalReport) -> String {
     html
 }
 
-fn how_to_read(collected: &ReportCollector) -> String {
+fn how_to_read(collected: &ReportCollector, magnify: usize) -> String {
     let o = collected.options;
     let mut html = String::from("<h2>How to read the frames</h2>\n<p>");
     let _ = write!(
@@ -231,7 +242,7 @@ fn how_to_read(collected: &ReportCollector) -> String {
          new regions) and the D-MSE of every method on it, beside its ratio to <code>fill</code>'s \
          (<span class=\"better\">&nbsp;green: better than fill&nbsp;</span>, \
          <span class=\"worse\">&nbsp;red: worse&nbsp;</span>). Below it, up to {} regions are magnified \
-         {MAGNIFY} times ({}x{} pixels of the frame each, numbered on the overview).</p>\n<p>",
+         {magnify} times ({}x{} pixels of the frame each, numbered on the overview).</p>\n<p>",
         o.regions, o.window, o.window
     );
     html.push_str(
@@ -239,8 +250,8 @@ fn how_to_read(collected: &ReportCollector) -> String {
          ranked by the squared error the best method there leaves, summed over the region (the best \
          method being the one with the least error over it, among those that do not read the ground \
          truth): the places that weigh most in the frame's D-MSE whatever the method. Each is shown \
-         through a window centred on where that error lies; a region whose centre falls inside a \
-         window already shown is skipped.</p>\n",
+         through a window centred on where that error lies; a region whose window would overlap one \
+         already shown by more than a quarter is skipped.</p>\n",
     );
     let _ = writeln!(
         html,
@@ -277,7 +288,7 @@ fn order_control(methods: &[MethodInfo]) -> String {
     html
 }
 
-fn frame_section(f: usize, frame: &FrameSummary, methods: &[MethodInfo]) -> String {
+fn frame_section(f: usize, frame: &FrameSummary, methods: &[MethodInfo], magnify: usize) -> String {
     let r = &frame.record;
     let mut attrs = format!("data-order=\"{f}\"");
     let spread = spread(r, methods);
@@ -335,14 +346,14 @@ fn frame_section(f: usize, frame: &FrameSummary, methods: &[MethodInfo]) -> Stri
         html.push_str("<p><small>No disocclusion region to show.</small></p>\n");
     }
     for (k, crops) in frame.regions.iter().enumerate() {
-        html.push_str(&region_table(f, k, crops, methods));
+        html.push_str(&region_table(f, k, crops, methods, magnify));
     }
     html.push_str("</section>\n");
     html
 }
 
-fn region_table(f: usize, k: usize, crops: &crate::report::collect::RegionCrops, methods: &[MethodInfo]) -> String {
-    let (w, h) = (crops.truth.width() * MAGNIFY, crops.truth.height() * MAGNIFY);
+fn region_table(f: usize, k: usize, crops: &RegionCrops, methods: &[MethodInfo], magnify: usize) -> String {
+    let (w, h) = (crops.truth.width() * magnify, crops.truth.height() * magnify);
     let img =
         |src: String, alt: &str| format!("<img src=\"{src}\" alt=\"{}\" width=\"{w}\" height=\"{h}\">", escape(alt));
     let region = &crops.region;
@@ -419,5 +430,13 @@ mod tests {
         assert_eq!(spread(&record, &methods[..4]), None, "one method that infills");
         assert_eq!(ratio_to_fill(&record, "m1"), Some(0.5));
         assert_eq!(ratio_to_fill(&record, "absent"), None);
+    }
+
+    #[test]
+    fn crops_are_magnified_less_when_many_methods_share_a_row() {
+        assert_eq!(magnification(5, 64), 3);
+        assert_eq!(magnification(8, 64), 2);
+        assert_eq!(magnification(30, 64), 1);
+        assert_eq!(magnification(3, 4), MAX_MAGNIFICATION);
     }
 }

@@ -6,8 +6,8 @@
 //! among the methods that do not read the ground truth) leaves, summed over the region's pixels:
 //! the regions that weigh most in the frame's D-MSE whatever the method. Each chosen region is
 //! shown through a square window centred on where that error lies (its error-weighted centroid),
-//! kept inside the frame; a region whose centre falls inside a window already chosen is skipped,
-//! so that two crops do not show the same place.
+//! kept inside the frame; a region whose window would overlap a window already chosen by more
+//! than a quarter of its area is skipped, so that two crops do not show the same place.
 
 use ivp_core::geometry::Rect;
 
@@ -113,16 +113,13 @@ pub fn worst_regions(
             break;
         }
         let (cu, cv) = r.centre;
-        let inside = |w: &Rect| {
-            cu >= w.x as f64 && cu < (w.x + w.width) as f64 && cv >= w.y as f64 && cv < (w.y + w.height) as f64
-        };
-        if chosen.iter().any(|c| inside(&c.window)) {
-            continue;
-        }
         let place = |centre: f64, size: usize, limit: usize| {
             ((centre + 0.5 - size as f64 / 2.0).round().max(0.0) as usize).min(limit - size)
         };
         let window = Rect { x: place(cu, ww, width), y: place(cv, wh, height), width: ww, height: wh };
+        if chosen.iter().any(|c| 4 * overlap(&c.window, &window) > window.area()) {
+            continue;
+        }
         chosen.push(Region {
             window,
             pixels: r.pixels,
@@ -131,6 +128,12 @@ pub fn worst_regions(
         });
     }
     chosen
+}
+
+/// The pixels two rectangles share.
+fn overlap(a: &Rect, b: &Rect) -> usize {
+    let along = |a0: usize, a1: usize, b0: usize, b1: usize| a1.min(b1).saturating_sub(a0.max(b0));
+    along(a.x, a.x + a.width, b.x, b.x + b.width) * along(a.y, a.y + a.height, b.y, b.y + b.height)
 }
 
 /// Per-pixel squared error of `prediction` against `truth`, the mean over the channels on the
@@ -205,12 +208,20 @@ mod tests {
     }
 
     #[test]
-    fn a_region_inside_a_chosen_window_is_skipped_and_windows_fit_small_frames() {
+    fn a_region_whose_window_overlaps_a_chosen_one_is_skipped_and_windows_fit_small_frames() {
         let (m, w, h) = mask(&["#.#.", "....", "...."]);
         let errors = vec![10.0f32; m.len()];
         let regions = worst_regions(&m, w, h, &[Some(&errors[..])], 2, 64);
-        assert_eq!(regions.len(), 1, "the second pixel lies inside the first window");
+        assert_eq!(regions.len(), 1, "both windows are the whole frame");
         assert_eq!(regions[0].window, Rect::whole(4, 3));
+        // Windows of 4x4 on a 12x4 frame: the window of the hole at column 3 (columns 2..6)
+        // overlaps the first one (0..4) by half (skipped), that of the hole at 10 not at all.
+        let (m, w, h) = mask(&["##.#......#.", "##..........", "............", "............"]);
+        let errors = vec![10.0f32; m.len()];
+        let regions = worst_regions(&m, w, h, &[Some(&errors[..])], 3, 4);
+        let xs: Vec<usize> = regions.iter().map(|r| r.window.x).collect();
+        assert_eq!(xs, [0, 8]);
+        assert_eq!(overlap(&Rect { x: 0, y: 0, width: 4, height: 4 }, &Rect { x: 2, y: 1, width: 4, height: 4 }), 6);
     }
 
     #[test]
