@@ -162,7 +162,7 @@ code{background:#f4f4f4;padding:1px 4px;word-break:break-all}\
 .better{background:#d4f4d4}.worse{background:#f8d0d0}\
 .crops{display:block;overflow-x:auto}.crops td{text-align:center;vertical-align:top;padding:2px;font-size:13px}\
 .crops th{font-size:13px;font-weight:normal;background:none;text-align:center}\
-.crops img,.legend img{image-rendering:pixelated}\
+.crops img,.legend img,img.overview{image-rendering:pixelated}\
 .rowlabel{writing-mode:vertical-rl;transform:rotate(180deg);font-size:12px;color:#555}\
 .charts img{margin-right:8px;border:1px solid #ddd}small{color:#555}";
 
@@ -204,7 +204,7 @@ pub fn render(report: &EvalReport, collected: &ReportCollector, context: &PageCo
     html.push_str(&order_control(methods));
     html.push_str("<div id=\"frames\">\n");
     for (f, frame) in collected.frames.iter().enumerate() {
-        html.push_str(&frame_section(f, frame, methods, magnify));
+        html.push_str(&frame_section(f, frame, methods, magnify, collected.options.thumbnail_width));
     }
     let _ = write!(html, "</div>\n<script>{SCRIPT}</script>\n</body></html>\n");
     html
@@ -288,7 +288,13 @@ fn order_control(methods: &[MethodInfo]) -> String {
     html
 }
 
-fn frame_section(f: usize, frame: &FrameSummary, methods: &[MethodInfo], magnify: usize) -> String {
+fn frame_section(
+    f: usize,
+    frame: &FrameSummary,
+    methods: &[MethodInfo],
+    magnify: usize,
+    thumbnail_width: usize,
+) -> String {
     let r = &frame.record;
     let mut attrs = format!("data-order=\"{f}\"");
     let spread = spread(r, methods);
@@ -333,12 +339,18 @@ fn frame_section(f: usize, frame: &FrameSummary, methods: &[MethodInfo], magnify
             ratio.map_or("-".to_string(), |x| format!("{x:.2}"))
         );
     }
-    let (tw, th) = (frame.thumbnail.width(), frame.thumbnail.height());
-    let shrunk =
-        if frame.thumbnail_factor > 1 { format!(" (shrunk {} times)", frame.thumbnail_factor) } else { String::new() };
+    // Frames narrower than the thumbnails are shown magnified to about their width.
+    let grown = (thumbnail_width / frame.thumbnail.width().max(1)).max(1);
+    let (tw, th) = (frame.thumbnail.width() * grown, frame.thumbnail.height() * grown);
+    let shrunk = match (frame.thumbnail_factor, grown) {
+        (1, 1) => String::new(),
+        (1, k) => format!(" (magnified {k} times)"),
+        (s, _) => format!(" (shrunk {s} times)"),
+    };
     let _ = writeln!(
         html,
-        "</table><figure style=\"margin:0\"><img src=\"{}\" alt=\"warped frame\" width=\"{tw}\" height=\"{th}\">\
+        "</table><figure style=\"margin:0\"><img class=\"overview\" src=\"{}\" alt=\"warped frame\" width=\"{tw}\" \
+         height=\"{th}\">\
          <figcaption><small>warped{shrunk}, regions outlined</small></figcaption></figure></div>",
         Files::overview(f)
     );
