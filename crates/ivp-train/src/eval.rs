@@ -1,5 +1,7 @@
 //! The evaluation harness: every method predicts the same targets of the same clips from the same
 //! warps, and is scored as ALGORITHMS.md §7 says (8-bit predictions, D- metrics on disocclusions, TC).
+//! Each scored target is handed to a [`FrameObserver`] (the HTML report keeps crops of it), so a
+//! report shows the predictions and numbers scored here, not a second computation of them.
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -408,6 +410,7 @@ fn evaluate_clip(
         let disocclusions = warp.holes.disocclusions();
 
         let mut predictions = Vec::with_capacity(methods.len());
+        // The vectors the infillers made anyway, kept for the observer until the target is done.
         let mut vectors = Vec::with_capacity(methods.len());
         let mut record =
             FrameRecord { clip: name.to_string(), target: t, disocclusion_pixels: 0, d_mse: BTreeMap::new() };
