@@ -300,12 +300,12 @@ fn frame_section(
     let spread = spread(r, methods);
     if let Some(s) = spread {
         // JavaScript's parseFloat reads "Infinity" (one method exact, another not).
-        let value = if s.is_finite() { s.to_string() } else { "Infinity".to_string() };
+        let value = if s.is_finite() { format!("{s:.4}") } else { "Infinity".to_string() };
         let _ = write!(attrs, " data-spread=\"{value}\"");
     }
     for (i, m) in methods.iter().enumerate().filter(|(_, m)| m.is_model) {
         if let Some(ratio) = ratio_to_fill(r, &m.name) {
-            let _ = write!(attrs, " data-vs-fill-{i}=\"{ratio}\"");
+            let _ = write!(attrs, " data-vs-fill-{i}=\"{ratio:.4}\"");
         }
     }
     let mut html = format!("<section class=\"frame\" id=\"f{f:03}\" {attrs}>\n");
