@@ -46,6 +46,8 @@ pub struct Sweep {
     pub out: PathBuf,
     /// A few steps at small sizes: a smoke test of the whole pipeline.
     pub quick: bool,
+    /// Also write the HTML report of `ivp eval --report` over the variants into `OUT/report`.
+    pub report: bool,
 }
 
 /// One score of one row, seed and dataset.
@@ -118,6 +120,14 @@ pub fn ablate(ivp: &Path, sweep: &Sweep) -> Result<()> {
             }
         }
     }
+    if sweep.report {
+        let (name, data) = &datasets[0];
+        let seed = sweep.seeds[0];
+        let models: Vec<(&str, PathBuf)> =
+            TRAINED.iter().map(|&v| (v, run_dir(v, seed).join("model.safetensors"))).collect();
+        write_report(ivp, data, &models, &sweep.out.join("report"))?;
+        println!("report of {name}, seed {seed}: {}", sweep.out.join("report/index.html").display());
+    }
     let (csv, md) = (sweep.out.join("ablations.csv"), sweep.out.join("ablations.md"));
     std::fs::write(&csv, to_csv(&scores)).with_context(|| format!("writing {}", csv.display()))?;
     std::fs::write(&md, to_markdown(&scores, sweep)).with_context(|| format!("writing {}", md.display()))?;
@@ -126,6 +136,23 @@ pub fn ablate(ivp: &Path, sweep: &Sweep) -> Result<()> {
     print!("{}", std::fs::read_to_string(&md)?);
     println!("written: {}, {} and {}", csv.display(), md.display(), svg.display());
     Ok(())
+}
+
+/// The HTML report of `ivp eval --report` over `models` (each at P = 3, beside `fill` and
+/// `telea`) on `data`, written into `dir` afresh: the folder is the sweep's own, so a report of an
+/// earlier sweep is removed first rather than mixed with this one.
+fn write_report(ivp: &Path, data: &Path, models: &[(&str, PathBuf)], dir: &Path) -> Result<()> {
+    if dir.exists() {
+        std::fs::remove_dir_all(dir).with_context(|| format!("removing the previous report {}", dir.display()))?;
+    }
+    let mut cmd = Command::new(ivp);
+    cmd.args(["--quiet", "eval", "--data"]).arg(data).args(["--methods", "fill,telea", "--iterations", "3"]);
+    for (name, model) in models {
+        cmd.arg("--model").arg(format!("{name}={}", model.display()));
+    }
+    cmd.arg("--report").arg(dir);
+    println!("{cmd:?}");
+    run(cmd.stdout(std::process::Stdio::null()))
 }
 
 /// The held-out clips, generated once (the same seed gives byte-identical files).

@@ -48,6 +48,10 @@ enum Task {
         /// the binary it started with.
         #[arg(long)]
         ivp: Option<PathBuf>,
+        /// Also write an HTML report (`ivp eval --report`) of every variant's first seed beside
+        /// fill and telea on the Blender clips (the generated split without them) to OUT/report.
+        #[arg(long)]
+        report: bool,
     },
     /// Run the criterion benchmarks (warping a 1920x1080 frame, convolutions, training samples).
     Bench {
@@ -105,7 +109,7 @@ struct SpeedArgs {
 
 fn main() -> Result<()> {
     match Cli::parse().command {
-        Task::Ablate { seeds, steps, data, out, quick, ivp } => {
+        Task::Ablate { seeds, steps, data, out, quick, ivp, report } => {
             ablate::check_seeds(&seeds)?;
             let ivp = match ivp {
                 Some(path) if path.is_file() => path,
@@ -114,7 +118,7 @@ fn main() -> Result<()> {
                 None => build_ivp(&root())?,
             };
             let out = if quick && out == Path::new("runs/ablate") { PathBuf::from("runs/ablate-quick") } else { out };
-            ablate::ablate(&ivp, &ablate::Sweep { seeds, steps, blender: data, out, quick })
+            ablate::ablate(&ivp, &ablate::Sweep { seeds, steps, blender: data, out, quick, report })
         }
         Task::Bench { threads, speed, .. } if speed.speed_vs_error => bench_speed_vs_error(threads, speed),
         Task::Bench { torch: true, threads, runs, .. } => bench_against_torch(threads, runs),

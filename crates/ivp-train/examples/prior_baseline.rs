@@ -36,7 +36,8 @@ impl Infiller for PriorSpread {
         let prior = ctx.temporal_prior().map_or_else(|| VectorField::zeros(width, height), |p| p.prior);
         let prior = ScaledPrior::full_size(prior);
         let out = infill_iteratively(self, &w.image, &w.depth, &w.holes, &prior, DEFAULT_ITERATIONS)?;
-        Ok(Infilled { image: out.image, stages: vec![("infill", out.predict_time + out.other_time)] })
+        let stages = vec![("infill", out.predict_time + out.other_time)];
+        Ok(Infilled { image: out.image, stages, vectors: Some(out.vectors) })
     }
 }
 

@@ -1,5 +1,7 @@
 //! The evaluation harness: every method predicts the same targets of the same clips from the same
 //! warps, and is scored as ALGORITHMS.md §7 says (8-bit predictions, D- metrics on disocclusions, TC).
+//! Each scored target is handed to a [`FrameObserver`] (the HTML report keeps crops of it), so a
+//! report shows the predictions and numbers scored here, not a second computation of them.
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -11,7 +13,7 @@ use ivp_core::geometry::FrameView;
 use ivp_core::inference::{Coverage, ModelInfiller, Scale};
 use ivp_core::infill::{classical_infiller, InfillContext, Infiller, CLASSICAL_METHODS};
 use ivp_core::metrics::{score_frame, tc_track_variances, FrameScores, TcSequence};
-use ivp_core::{relative_pose, warp_forward, RgbImage, Warp};
+use ivp_core::{relative_pose, warp_forward, RgbImage, VectorField, Warp};
 use ivp_data::{find_clips, read_rgb, Clip, Frame};
 use serde::Serialize;
 
@@ -70,14 +72,19 @@ pub fn build_methods(specs: &MethodSpecs<'_>) -> Result<Vec<Method>> {
     Ok(methods)
 }
 
+/// The name and file of a `--model` argument: `NAME=FILE`, or `FILE` named `ivp`.
+pub fn model_spec(spec: &str) -> (String, PathBuf) {
+    match spec.split_once('=') {
+        Some((name, file)) => (name.to_string(), PathBuf::from(file)),
+        None => ("ivp".to_string(), PathBuf::from(spec)),
+    }
+}
+
 fn load_models(specs: &[String], iterations: usize, coverage: Coverage, scale: Scale) -> Result<Vec<ModelInfiller>> {
     specs
         .iter()
         .map(|spec| {
-            let (name, file) = match spec.split_once('=') {
-                Some((name, file)) => (name.to_string(), PathBuf::from(file)),
-                None => ("ivp".to_string(), PathBuf::from(spec)),
-            };
+            let (name, file) = model_spec(spec);
             ensure!(iterations > 0, "--iterations must be at least 1");
             let (net, _) = load_model(&file)?;
             Ok(ModelInfiller::new(name, net, iterations).with_coverage(coverage).with_scale(scale))
@@ -277,8 +284,43 @@ fn tc_applies(targets: &[usize], clip_len: usize) -> bool {
         && targets[targets.len() - 1] + 1 < clip_len
 }
 
+/// What one target frame left once every method predicted it: the inputs to a report that shows
+/// more than the scores (`ivp eval --report`). The record holds the scores the table pools.
+pub struct FrameOutputs<'a> {
+    pub record: &'a FrameRecord,
+    /// The warp every method started from (its holes say where the disocclusions are).
+    pub warp: &'a Warp,
+    pub truth: &'a RgbImage,
+    /// Per method, in the order of the methods: the 8-bit prediction that was scored.
+    pub predictions: &'a [RgbImage],
+    /// Per method: the vectors it filled the disocclusions with, for the methods that fill by vectors.
+    pub vectors: &'a [Option<VectorField>],
+}
+
+/// Sees every target frame of an evaluation as soon as it is scored (and only then: keeping every
+/// frame of a dataset would take memory in proportion to the dataset).
+pub trait FrameObserver {
+    fn observe(&mut self, frame: &FrameOutputs<'_>);
+}
+
+/// The observer of a plain evaluation: it keeps nothing.
+impl FrameObserver for () {
+    fn observe(&mut self, _: &FrameOutputs<'_>) {}
+}
+
 /// Scores every method on every target of every clip under `data`.
 pub fn evaluate(data: &Path, targets: &[usize], methods: &[Method], progress: bool) -> Result<EvalReport> {
+    evaluate_observed(data, targets, methods, progress, &mut ())
+}
+
+/// [`evaluate`], handing every scored target frame to `observer`.
+pub fn evaluate_observed(
+    data: &Path,
+    targets: &[usize],
+    methods: &[Method],
+    progress: bool,
+    observer: &mut dyn FrameObserver,
+) -> Result<EvalReport> {
     if methods.is_empty() {
         bail!("no method to evaluate");
     }
@@ -298,7 +340,8 @@ pub fn evaluate(data: &Path, targets: &[usize], methods: &[Method], progress: bo
     for clip in &clips {
         let name = clip_name(data, clip.path());
         bar.set_message(name.clone());
-        evaluate_clip(clip, &name, &sorted_targets, methods, &mut acc, &mut per_frame, &bar)?;
+        let mut sink = Sink { acc: &mut acc, per_frame: &mut per_frame, observer: &mut *observer };
+        evaluate_clip(clip, &name, &sorted_targets, methods, &mut sink, &bar)?;
         names.push(name);
     }
     bar.finish_and_clear();
@@ -330,15 +373,22 @@ struct TargetOutcome {
     predictions: Vec<RgbImage>,
 }
 
+/// Where the outcomes of a clip's targets go.
+struct Sink<'a> {
+    acc: &'a mut [Accumulator],
+    per_frame: &'a mut Vec<FrameRecord>,
+    observer: &'a mut dyn FrameObserver,
+}
+
 fn evaluate_clip(
     clip: &Clip,
     name: &str,
     targets: &[usize],
     methods: &[Method],
-    acc: &mut [Accumulator],
-    per_frame: &mut Vec<FrameRecord>,
+    sink: &mut Sink<'_>,
     bar: &ProgressBar,
 ) -> Result<()> {
+    let acc = &mut *sink.acc;
     let first = targets[0] - 3;
     let last = (targets[targets.len() - 1] + 1).min(clip.len() - 1);
     let frames: BTreeMap<usize, Frame> =
@@ -360,10 +410,12 @@ fn evaluate_clip(
         let disocclusions = warp.holes.disocclusions();
 
         let mut predictions = Vec::with_capacity(methods.len());
+        // The vectors the infillers made anyway, kept for the observer until the target is done.
+        let mut vectors = Vec::with_capacity(methods.len());
         let mut record =
             FrameRecord { clip: name.to_string(), target: t, disocclusion_pixels: 0, d_mse: BTreeMap::new() };
         for (method, acc) in methods.iter().zip(acc.iter_mut()) {
-            let prediction = match method {
+            let (prediction, filled_with) = match method {
                 Method::Internal(infiller) => {
                     let truth = infiller.uses_ground_truth().then_some(&truth.image);
                     let ctx = target_context(clip, [before_last, last_frame], t, &warp, truth);
@@ -380,7 +432,7 @@ fn evaluate_clip(
                         *acc.stage_time.entry(stage).or_default() += d;
                     }
                     acc.timed_frames += 1;
-                    out.image.quantized_to_8bit()
+                    (out.image.quantized_to_8bit(), out.vectors)
                 }
                 Method::External { name: method_name, dir } => {
                     let path = dir.join(name).join(format!("{t:04}.png"));
@@ -395,7 +447,7 @@ fn evaluate_clip(
                             truth.image.height()
                         );
                     }
-                    image.quantized_to_8bit()
+                    (image.quantized_to_8bit(), None)
                 }
             };
             let scores = score_frame(&prediction, &truth.image, &disocclusions);
@@ -403,8 +455,16 @@ fn evaluate_clip(
             record.d_mse.insert(method.name().to_string(), scores.d_mse);
             acc.add(&scores);
             predictions.push(prediction);
+            vectors.push(filled_with);
         }
-        per_frame.push(record);
+        sink.observer.observe(&FrameOutputs {
+            record: &record,
+            warp: &warp,
+            truth: &truth.image,
+            predictions: &predictions,
+            vectors: &vectors,
+        });
+        sink.per_frame.push(record);
         outcomes.insert(t, TargetOutcome { warp, predictions });
         bar.inc(1);
     }
@@ -446,30 +506,48 @@ fn add_temporal_consistency(
     }
 }
 
+/// The columns of the table of scores.
+pub const TABLE_COLUMNS: [&str; 7] = ["method", "MSE", "D-MSE", "SSIM", "D-SSIM", "TC", "ms/frame"];
+
+/// The cells of the table of scores, one row per method, as `ivp eval` prints them (and its
+/// report shows them): one formatting for both.
+pub fn table_cells(report: &EvalReport) -> Vec<[String; 7]> {
+    let opt = |x: Option<f64>, digits: usize| x.map_or("-".to_string(), |v| format!("{v:.digits$}"));
+    report
+        .methods
+        .iter()
+        .map(|m| {
+            let name = if m.uses_ground_truth { format!("{} (uses ground truth)", m.name) } else { m.name.clone() };
+            [
+                name,
+                format!("{:.1}", m.mse),
+                opt(m.d_mse, 1),
+                format!("{:.3}", m.ssim),
+                opt(m.d_ssim, 3),
+                opt(m.tc, 1),
+                opt(m.ms_per_frame, 1),
+            ]
+        })
+        .collect()
+}
+
+/// The line under the table: what the averages are over.
+pub fn table_footer(report: &EvalReport) -> String {
+    let m = &report.methods[0];
+    format!(
+        "{} clips, targets {:?}: {} frames, {} with disocclusions (D- averages), {} TC tracks",
+        report.clips.len(),
+        report.targets,
+        m.frames,
+        m.d_frames,
+        m.tc_tracks
+    )
+}
+
 /// The table printed by `ivp eval`.
 pub fn format_table(report: &EvalReport) -> String {
-    let opt = |x: Option<f64>, digits: usize| x.map_or("-".to_string(), |v| format!("{v:.digits$}"));
-    let mut rows = vec![[
-        "method".to_string(),
-        "MSE".into(),
-        "D-MSE".into(),
-        "SSIM".into(),
-        "D-SSIM".into(),
-        "TC".into(),
-        "ms/frame".into(),
-    ]];
-    for m in &report.methods {
-        let name = if m.uses_ground_truth { format!("{} (uses ground truth)", m.name) } else { m.name.clone() };
-        rows.push([
-            name,
-            format!("{:.1}", m.mse),
-            opt(m.d_mse, 1),
-            format!("{:.3}", m.ssim),
-            opt(m.d_ssim, 3),
-            opt(m.tc, 1),
-            opt(m.ms_per_frame, 1),
-        ]);
-    }
+    let mut rows = vec![TABLE_COLUMNS.map(String::from)];
+    rows.extend(table_cells(report));
     let widths: Vec<usize> = (0..7).map(|c| rows.iter().map(|r| r[c].len()).max().unwrap_or(0)).collect();
     let mut out = String::new();
     for (i, row) in rows.iter().enumerate() {
@@ -484,15 +562,8 @@ pub fn format_table(report: &EvalReport) -> String {
             out.push_str(&format!("|-{}-|\n", rule.join("-|-")));
         }
     }
-    let m = &report.methods[0];
-    out.push_str(&format!(
-        "{} clips, targets {:?}: {} frames, {} with disocclusions (D- averages), {} TC tracks\n",
-        report.clips.len(),
-        report.targets,
-        m.frames,
-        m.d_frames,
-        m.tc_tracks
-    ));
+    out.push_str(&table_footer(report));
+    out.push('\n');
     out
 }
 

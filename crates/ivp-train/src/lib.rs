@@ -3,6 +3,8 @@
 //! - `cli`: the `ivp` command line (clap arguments and a thin `run_*` per subcommand).
 //! - `eval`: the evaluation harness: methods built from their names, scored on every target of
 //!   every clip (ALGORITHMS.md §7), the table and the JSON report.
+//! - `report`: `ivp eval --report DIR`: an evaluation as an HTML page with crops of every frame's
+//!   worst disocclusion regions, error maps, vectors and charts (a folder any browser opens).
 //! - `export_warps`: warped frames on disk (`ivp warp`), and every evaluation target exported for
 //!   other tools.
 //! - `check`: which reading of a clip's poses, axes and depth units explains its images.
@@ -38,6 +40,7 @@ pub mod metrics_csv;
 pub mod onnx;
 pub mod plot;
 pub mod progress;
+pub mod report;
 pub mod sheet;
 pub mod train;
 pub mod validation;

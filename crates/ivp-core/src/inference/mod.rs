@@ -237,7 +237,7 @@ impl Infiller for ModelInfiller {
 
     fn infill(&self, ctx: &InfillContext<'_>) -> Result<Infilled, InfillError> {
         let prediction = self.predict(ctx)?;
-        Ok(Infilled { image: prediction.image, stages: prediction.stages })
+        Ok(Infilled { image: prediction.image, stages: prediction.stages, vectors: prediction.vectors })
     }
 }
 

@@ -124,7 +124,9 @@ impl Infiller for Oracle {
             fill_new_regions(&mut image, holes);
             image
         });
-        Ok(Infilled { image, stages: vec![("prior", prior_elapsed), ("infill", infill_elapsed)] })
+        // Zero where no direction matched: those pixels took the `fill` value instead.
+        let stages = vec![("prior", prior_elapsed), ("infill", infill_elapsed)];
+        Ok(Infilled { image, stages, vectors: Some(vectors) })
     }
 }
 

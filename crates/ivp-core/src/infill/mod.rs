@@ -23,7 +23,7 @@ pub use telea::{inpaint_telea, Telea, TELEA_RADIUS};
 
 use std::time::{Duration, Instant};
 
-use crate::geometry::{FrameView, Intrinsics, RgbImage, Warp, WorldToCamera};
+use crate::geometry::{FrameView, Intrinsics, RgbImage, VectorField, Warp, WorldToCamera};
 use crate::prior::{target_prior, TargetPrior};
 
 /// Everything a method may use to predict frame `t = n + 1`.
@@ -57,6 +57,10 @@ pub struct Infilled {
     pub image: RgbImage,
     /// Time by stage (`"prior"`, `"network"`, `"infill"`), in the order the stages ran.
     pub stages: Vec<(&'static str, Duration)>,
+    /// For methods that fill by vectors (`oracle`, a network's vector variants): per disocclusion
+    /// pixel, the vector it was filled with (zero elsewhere), for reports to draw. `None` for the
+    /// others.
+    pub vectors: Option<VectorField>,
 }
 
 #[derive(Debug, thiserror::Error)]
@@ -108,5 +112,5 @@ pub(crate) fn timed<T>(f: impl FnOnce() -> T) -> (T, Duration) {
 }
 
 pub(crate) fn infilled_in_one_stage(image: RgbImage, elapsed: Duration) -> Infilled {
-    Infilled { image, stages: vec![("infill", elapsed)] }
+    Infilled { image, stages: vec![("infill", elapsed)], vectors: None }
 }
