@@ -284,4 +284,32 @@ mod tests {
         assert_eq!(TileShape::new(96, 48).unwrap().shrunk_by(2), TileShape { core: 48, margin: 32 });
         assert_eq!(TileShape::new(16, 16).unwrap().shrunk_by(4), TileShape { core: 16, margin: 16 });
     }
+
+    /// Cells whose needs (core plus margin) overlap or touch are planned together: next to each
+    /// other across or down, at the frame's first and last rows and columns too, or three cells apart, where
+    /// 32 pixels of margin on each side just meet. Four cells apart they do not, and stay apart.
+    #[test]
+    fn cells_whose_needs_touch_share_a_tile() {
+        let (w, h) = (320, 240);
+        let plan = |pixels: &[(usize, usize)]| plan_tiles(w, h, &marks(w, h, pixels), TileShape::DEFAULT);
+        for pair in [
+            [(5, 5), (40, 5)],
+            [(5, 5), (5, 40)],
+            [(5, 5), (100, 5)],
+            [(5, 5), (5, 100)],
+            [(300, 5), (300, 40)],
+            [(300, 230), (250, 230)],
+        ] {
+            let tiles = plan(&pair);
+            assert_eq!(tiles.len(), 1, "{pair:?}: {tiles:?}");
+            assert_eq!(tiles[0].cores.len(), 2, "{pair:?}");
+        }
+        for pair in [[(5, 5), (140, 5)], [(5, 5), (5, 140)]] {
+            assert_eq!(plan(&pair).len(), 2, "{pair:?}");
+        }
+        // A cell four apart is not grouped with the pair: one group of all three would be cut at its
+        // median, between the two neighbours, and read their shared margin twice.
+        let tiles = plan(&[(5, 5), (40, 5), (165, 5)]);
+        assert_eq!(tiles.iter().map(|t| t.cores.len()).collect::<Vec<_>>(), [2, 1], "{tiles:?}");
+    }
 }
