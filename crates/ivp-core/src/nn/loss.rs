@@ -427,6 +427,20 @@ mod tests {
         }
     }
 
+    /// The total is the weighted sum of the three terms, each weight on its own term.
+    #[test]
+    fn the_total_weighs_each_term_by_its_weight() {
+        let (p, t) = (uniform(&SHAPE, 21), uniform(&SHAPE, 22));
+        let m = holes(SHAPE[0], SHAPE[2], SHAPE[3], 0.5, 23);
+        let v = (random(&[SHAPE[0], 2, SHAPE[2], SHAPE[3]], 24) * 3.0).unwrap();
+        let weights = LossWeights { mse: 0.7, ssim: 1.9, smooth: 0.3 };
+        let terms = ivp_loss(&p, &t, &m, Some(&v), &weights).unwrap();
+        let (mse, ssim, smooth) = (scalar(&terms.mse), scalar(&terms.ssim), scalar(&terms.smooth));
+        assert!(mse > 0.0 && ssim > 0.0 && smooth > 0.0, "every term counts here: {mse} {ssim} {smooth}");
+        let expected = 0.7 * mse + 1.9 * ssim + 0.3 * smooth;
+        assert!((scalar(&terms.total) - expected).abs() <= 1e-6 * expected, "{} vs {expected}", scalar(&terms.total));
+    }
+
     #[test]
     fn smoothness_of_one_pair_by_hand() {
         // Hole pixels (y 2, x 3) and (y 2, x 4) of a 1x3x5x6 image: one horizontal pair, no
