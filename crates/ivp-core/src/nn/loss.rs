@@ -429,8 +429,9 @@ mod tests {
 
     /// Away from the border (where the window's zero padding counts), two equal constant images
     /// have equal means and no variance: s = (2 mu^2 + C1)(2e-6 + C2) / ((2 mu^2 + C1) C2), so the
-    /// loss is -2e-6 / C2 whatever the level, up to the f32 rounding of `blur(a^2) - mu^2` (about
-    /// level^2 x 1e-7, which moves the loss by 2e-4 at level 0.9 but under 1e-5 at 0.5).
+    /// loss is -2e-6 / C2 whatever the level, up to the f32 rounding of `blur(a^2) - mu^2`: a few
+    /// ulps of level^2, over C2 in the denominator, which moves the loss by up to 3e-4 at level 0.9
+    /// but under 3e-5 at the dark levels tested (where a wrong C1 would move it by 1e-3 to 1e-2).
     #[test]
     fn ssim_of_equal_constant_images_by_hand() {
         let (h, w) = (25, 25);
@@ -438,10 +439,10 @@ mod tests {
             (0..h * w).map(|i| f32::from((6..19).contains(&(i / w)) && (6..19).contains(&(i % w)))).collect();
         let m = tensor(interior, &[1, 1, h, w]);
         let expected = (-2.0 * SQRT_EPS.sqrt() / SSIM_C2) as f32;
-        for level in [0.2f32, 0.35, 0.5] {
+        for level in [0.1f32, 0.15, 0.2, 0.25] {
             let p = tensor(vec![level; 3 * h * w], &[1, 3, h, w]);
             let loss = scalar(&masked_ssim_loss(&p, &p, &m).unwrap());
-            assert!((loss - expected).abs() <= 1e-5, "level {level}: {loss} vs {expected}");
+            assert!((loss - expected).abs() <= 1e-4, "level {level}: {loss} vs {expected}");
         }
     }
 
