@@ -446,6 +446,17 @@ mod tests {
         }
     }
 
+    /// A 2x2 image, all holes, truth constant (edge weights 1): x pairs |1 - 0| and |4 - 2| over
+    /// 2 pairs, y pairs |2 - 0| and |4 - 1| over 2 pairs: 1.5 + 2.5 (the y component is 0).
+    #[test]
+    fn smoothness_of_a_two_by_two_image_by_hand() {
+        let v = tensor(vec![0.0, 1.0, 2.0, 4.0, 0.0, 0.0, 0.0, 0.0], &[1, 2, 2, 2]);
+        let t = tensor(vec![0.5; 12], &[1, 3, 2, 2]);
+        let m = tensor(vec![1.0; 4], &[1, 1, 2, 2]);
+        let loss = scalar(&smoothness_loss(&v, &t, &m).unwrap());
+        assert!((loss - 4.0).abs() < 1e-6, "{loss}");
+    }
+
     /// The total is the weighted sum of the three terms, each weight on its own term.
     #[test]
     fn the_total_weighs_each_term_by_its_weight() {
