@@ -517,8 +517,18 @@ mod tests {
         let [b, _, h, w] = SHAPE;
         let (p, t) = (uniform(&SHAPE, 1), uniform(&SHAPE, 2));
         let m = holes(b, h, w, 0.5, 3);
-        assert!(ivp_loss(&p, &t.narrow(3, 0, w - 1).unwrap(), &m, None, &LossWeights::default()).is_err());
-        assert!(ivp_loss(&p, &t, &m.narrow(2, 0, h - 1).unwrap(), None, &LossWeights::default()).is_err());
+        // Each input checked on its own, by the loss's own message (not a later op's).
+        let message = |p: &Tensor, t: &Tensor, m: &Tensor| {
+            ivp_loss(p, t, m, None, &LossWeights::default()).unwrap_err().to_string()
+        };
+        assert!(message(&p, &t.narrow(3, 0, w - 1).unwrap(), &m).starts_with("ivp_loss: prediction"));
+        assert!(message(&p, &t, &m.narrow(2, 0, h - 1).unwrap()).starts_with("ivp_loss: prediction"));
+        let f64_of = |x: &Tensor| x.to_dtype(DType::F64).unwrap();
+        for (p, t, m) in
+            [(f64_of(&p), t.clone(), m.clone()), (p.clone(), f64_of(&t), m.clone()), (p.clone(), t.clone(), f64_of(&m))]
+        {
+            assert!(message(&p, &t, &m).starts_with("ivp_loss: f32 tensors expected"));
+        }
         let v = random(&[b, 3, h, w], 4);
         assert!(ivp_loss(&p, &t, &m, Some(&v), &LossWeights::default()).is_err());
     }
