@@ -600,6 +600,13 @@ mod tests {
                 assert_eq!(vectors.get(u, v), expected, "({u}, {v})");
             }
         }
+        // Known pixels get none even as targets; a hole that is not a target gets none either.
+        let all = vec![true; w * h];
+        assert_eq!(estimate_fictitious_vectors_on(&known, &all, &truth), vectors);
+        let mut all_but_one = all;
+        all_but_one[6 * w + 6] = false;
+        let without = estimate_fictitious_vectors_on(&known, &all_but_one, &truth);
+        assert!(without.pixels().iter().all(|&p| p == [0.0, 0.0]));
     }
 
     #[test]
