@@ -61,11 +61,6 @@ pub fn write_network_inputs(clip: &Clip, t: usize, path: &Path) -> Result<()> {
     let known = warp.holes.known();
     let before_last_view = ctx.before_last.as_ref().expect("target_context gives frame t-3");
     let prior = target_prior(before_last_view, &ctx.last, ctx.target_pose, ctx.intrinsics, &known).prior;
-    // The iterative infilling's depth input: 0 on every pixel not known yet.
-    let depth = DepthMap::from_fn(warp.depth.width(), warp.depth.height(), |x, y| {
-        let i = y * warp.depth.width() + x;
-        [if known[i] { warp.depth.pixels()[i][0] } else { 0.0 }]
-    });
     let as_map = |mask: &[bool]| {
         DepthMap::from_fn(warp.depth.width(), warp.depth.height(), |x, y| {
             [f32::from(u8::from(mask[y * warp.depth.width() + x]))]
@@ -75,7 +70,8 @@ pub fn write_network_inputs(clip: &Clip, t: usize, path: &Path) -> Result<()> {
     let truth = clip.load_frame(t)?.image;
     let tensors = [
         ("prior", to_tensor(&prior)?),
-        ("depth", to_tensor(&depth)?),
+        // The warp leaves 0 in its holes: the infilling's depth input as it is.
+        ("depth", to_tensor(&warp.depth)?),
         ("hole", to_tensor(&as_map(&warp.holes.disocclusions()))?),
         ("warped", to_tensor(&warp.image)?),
         ("known", to_tensor(&as_map(&known))?),
