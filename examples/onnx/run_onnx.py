@@ -3,7 +3,7 @@
     python3 examples/onnx/run_onnx.py MODEL.onnx INPUTS.safetensors [INPUTS.safetensors ...]
 
 Each INPUTS file is what `ivp infer --network-inputs` writes for one target (MODEL.md, "Running
-the graph"): the graph's inputs `prior`, `depth`, `hole`, and `warped`, `known`, `fill`, `truth`.
+the graph"): the graph's inputs `prior`, `depth`, `hole`, and `warped`, `known`, `fill`, `threshold`, `truth`.
 The graph gives the vectors; everything after it is here, in numpy, as ivp does it with one
 iteration (ALGORITHMS.md §6.3, §6.5):
 
@@ -11,7 +11,8 @@ iteration (ALGORITHMS.md §6.3, §6.5):
   only (the weights renormalised over them);
 - a vector that reads nothing is walked along its direction, magnitudes 1..100, and the first
   magnitude that reads a known pixel is taken;
-- a pixel that even the walk cannot fill takes the `fill` rule's value;
+- a pixel that even the walk cannot fill takes the `fill` rule's value, and so does one whose read
+  depth is less than its background depth threshold divided by 4 (it read the foreground);
 - the frame is quantised to 8 bits, and D-MSE is the mean squared error on 0..255 over the
   disocclusion pixels and the three channels; a clip's D-MSE is the mean over its targets.
 
@@ -25,6 +26,7 @@ import onnxruntime as ort
 from safetensors.numpy import load_file
 
 MAX_WALK_MAGNITUDE = 100
+FOREGROUND_DEPTH_RATIO = 4.0
 
 
 def known_read(image, known, x, y):
@@ -48,15 +50,19 @@ def known_read(image, known, x, y):
     return colour / np.where(found, total, 1), found
 
 
-def infill_once(vectors, warped, known, fill, hole):
+def infill_once(vectors, warped, depth, known, fill, threshold, hole):
     """The predicted frame (3, H, W) from one set of vectors (2, H, W)."""
     frame = warped.copy()
+    # Colour and depth are read together: channel 3 is the depth.
+    warped = np.concatenate([warped, depth[None]])
+    read_depth = np.full(hole.shape, np.nan, np.float32)
     ys, xs = np.nonzero(hole)
     # Positions in f32, as ivp adds them.
     fx, fy = xs.astype(np.float32), ys.astype(np.float32)
     a, b = vectors[0, ys, xs], vectors[1, ys, xs]
     colour, found = known_read(warped, known, fx + a, fy + b)
-    frame[:, ys[found], xs[found]] = colour[:, found]
+    frame[:, ys[found], xs[found]] = colour[:3, found]
+    read_depth[ys[found], xs[found]] = colour[3, found]
     # Walk the vectors that read nothing along their direction.
     todo = ~found
     length = np.hypot(a.astype(np.float64), b.astype(np.float64))
@@ -69,10 +75,14 @@ def infill_once(vectors, warped, known, fill, hole):
         wx, wy = (m * da[idx]).astype(np.float32), (m * db[idx]).astype(np.float32)
         colour, found = known_read(warped, known, fx[idx] + wx, fy[idx] + wy)
         done = idx[found]
-        frame[:, ys[done], xs[done]] = colour[:, found]
+        frame[:, ys[done], xs[done]] = colour[:3, found]
+        read_depth[ys[done], xs[done]] = colour[3, found]
         walkable[done] = False
         todo[done] = False
-    # What even the walk could not fill takes the `fill` rule's value.
+    # What even the walk could not fill, or what read far in front of its background, takes the
+    # `fill` rule's value.
+    t = threshold[ys, xs]
+    todo |= (t > 0) & (read_depth[ys, xs] * np.float32(FOREGROUND_DEPTH_RATIO) < t)
     frame[:, ys[todo], xs[todo]] = fill[:, ys[todo], xs[todo]]
     return frame
 
@@ -93,7 +103,9 @@ def main():
         t = load_file(path)
         (vectors,) = session.run(["vectors"], {name: t[name] for name in ("prior", "depth", "hole")})
         hole = t["hole"][0, 0] > 0
-        frame = infill_once(vectors[0], t["warped"][0], t["known"][0, 0] > 0, t["fill"][0], hole)
+        frame = infill_once(
+            vectors[0], t["warped"][0], t["depth"][0, 0], t["known"][0, 0] > 0, t["fill"][0], t["threshold"][0, 0], hole
+        )
         score = d_mse(frame, t["truth"][0], hole)
         print(f"{path}: {hole.sum()} disocclusion pixels, D-MSE {score if score is None else round(score, 2)}")
         if score is not None:

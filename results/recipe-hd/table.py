@@ -3,7 +3,8 @@
 
 Usage: table.py NAME=SCORES_DIR[:RUN_DIR] ...
 SCORES_DIR holds dev12.json and hd_scale-*.json of one model; RUN_DIR (optional) its training run,
-whose metrics.csv gives the validation the run printed last. Prints markdown: per model, D-MSE and
+whose metrics.csv gives the validation the run printed last (validation.sh's val320.json and
+valhd.json in SCORES_DIR, the same set scored by the current binary, take precedence). Prints markdown: per model, D-MSE and
 its ratio to fill on the 12 clips at 320x240 (with the worst clip and how many clips are worse than
 fill) and on the 1080p clips at every scale scored (the worst frame, every clip), ms/frame; then mean +- sd over the models, the worst against the best,
 and the rank agreement (Spearman) of the printed validation with the 12 clips and the 1080p clips.
@@ -56,6 +57,18 @@ def last_validation(run_dir):
     return small, large
 
 
+def recomputed_validation(scores_dir):
+    """The run's validation recomputed by validation.sh (val320.json, valhd.json), if there."""
+    paths = [os.path.join(scores_dir, f) for f in ("val320.json", "valhd.json")]
+    if not all(os.path.isfile(p) for p in paths):
+        return None
+    ratios = []
+    for p in paths:
+        _, m, fill = model_scores(load(p))
+        ratios.append(m["d_mse"] / fill["d_mse"])
+    return tuple(ratios)
+
+
 def spearman(a, b):
     def ranks(v):
         order = sorted(range(len(v)), key=lambda i: v[i])
@@ -91,7 +104,7 @@ def main(args):
             mname, m, fill = model_scores(report)
             row["hd"][scale] = (m["d_mse"], fill["d_mse"], m["ms_per_frame"], worst_frame(report, mname),
                                 per_clip(report, mname))
-        row["validation"] = last_validation(run_dir) if run_dir else None
+        row["validation"] = recomputed_validation(scores_dir) or (last_validation(run_dir) if run_dir else None)
         rows.append(row)
     scales = sorted(scales, key=lambda s: (s != "auto", s))
 

@@ -230,6 +230,13 @@ fn infer_writes_the_network_inputs_of_a_target() {
         assert!(known[i] > 0.0 || depth[i] == 0.0, "pixel {i}: depth must be 0 where not known");
     }
     assert!(values("prior", 2).iter().any(|v| *v != 0.0), "the target has a prior");
+    let threshold = values("threshold", 1);
+    for i in 0..hole.len() {
+        assert!(hole[i] > 0.0 || threshold[i] == 0.0, "pixel {i}: a threshold off the disocclusions");
+        assert!(threshold[i].is_finite() && threshold[i] >= 0.0, "pixel {i}: threshold {}", threshold[i]);
+    }
+    let with_threshold = threshold.iter().filter(|t| **t > 0.0).count();
+    assert!(with_threshold > 100, "most disocclusion pixels have a background threshold: {with_threshold}");
     for name in ["warped", "fill", "truth"] {
         values(name, 3);
     }

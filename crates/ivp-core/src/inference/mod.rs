@@ -97,6 +97,7 @@ fn predict_frame(
             filled_per_iteration = ?out.filled_per_iteration,
             walked = out.walked,
             fell_back = out.fell_back,
+            foreground_reads = out.foreground_reads,
             "iterative infilling"
         );
         return Ok(FramePrediction {
