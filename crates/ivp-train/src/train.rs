@@ -131,6 +131,67 @@ impl Default for TrainConfig {
     }
 }
 
+/// The fields of [`TrainConfig`] that `ivp train` takes as flags, each named as its field. They
+/// are applied by name through serde ([`TrainOverrides::apply`]), so the defaults and their
+/// documentation stay on [`TrainConfig`] alone, and a flag whose field is renamed or removed fails
+/// the tests rather than setting nothing.
+#[derive(Clone, Debug, Default, PartialEq, clap::Args, Serialize)]
+pub struct TrainOverrides {
+    /// full, intensity, no-tg (zeros for the temporal prior) or no-depth (no depth head).
+    #[arg(long)]
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub variant: Option<Variant>,
+    /// Width multiplier of the U-Net: 1 = the paper's widths (64 ... 256).
+    #[arg(long)]
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub width_mult: Option<f64>,
+    /// Width multiplier of the depth head: 1 = the paper's widths (16, 32, 16) at any
+    /// --width-mult; below 1 the network is cheaper per pixel.
+    #[arg(long)]
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub depth_head_mult: Option<f64>,
+    /// Training steps.
+    #[arg(long)]
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub steps: Option<u64>,
+    /// Crops per step (the global batch under MPI).
+    #[arg(long)]
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub batch: Option<usize>,
+    /// Side of the square training crops, centred on a disocclusion.
+    #[arg(long)]
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub crop: Option<usize>,
+    /// Peak learning rate of Adam, after a warm-up and before a cosine decay.
+    #[arg(long)]
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub lr: Option<f64>,
+    /// Seed of the data and of the initial weights: the same seed gives the same run.
+    #[arg(long)]
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub seed: Option<u64>,
+    /// Steps between checkpoints.
+    #[arg(long)]
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub checkpoint_every: Option<u64>,
+    /// Steps between validations (0: only at the end).
+    #[arg(long)]
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub validate_every: Option<u64>,
+}
+
+impl TrainOverrides {
+    /// `config` with the fields given here replaced.
+    pub fn apply(&self, config: &TrainConfig) -> Result<TrainConfig> {
+        let mut fields = serde_json::to_value(config)?;
+        let serde_json::Value::Object(overrides) = serde_json::to_value(self)? else {
+            unreachable!("a struct serialises to an object")
+        };
+        fields.as_object_mut().expect("a struct serialises to an object").extend(overrides);
+        serde_json::from_value(fields).context("a command-line override names no training setting")
+    }
+}
+
 impl TrainConfig {
     /// The few-minute run of `ivp demo`: the default recipe, shorter.
     pub fn demo() -> Self {
@@ -583,6 +644,38 @@ pub fn seeded_network(config: &TrainConfig) -> Result<(IvpNet, VarMap)> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn every_override_sets_the_field_of_its_name() {
+        let recipe = TrainConfig::default();
+        assert_eq!(TrainOverrides::default().apply(&recipe).unwrap(), recipe, "no flag, no change");
+        let overrides = TrainOverrides {
+            variant: Some(Variant::NoDepth),
+            width_mult: Some(0.5),
+            depth_head_mult: Some(0.5),
+            steps: Some(7),
+            batch: Some(3),
+            crop: Some(32),
+            lr: Some(2e-3),
+            seed: Some(9),
+            checkpoint_every: Some(11),
+            validate_every: Some(13),
+        };
+        let want = TrainConfig {
+            variant: Variant::NoDepth,
+            width_mult: 0.5,
+            depth_head_mult: 0.5,
+            steps: 7,
+            batch: 3,
+            crop: 32,
+            lr: 2e-3,
+            seed: 9,
+            checkpoint_every: 11,
+            validate_every: 13,
+            ..recipe.clone()
+        };
+        assert_eq!(overrides.apply(&recipe).unwrap(), want);
+    }
     use candle_core::Device;
 
     fn tensor(v: Vec<f32>, shape: (usize, usize, usize, usize)) -> Tensor {

@@ -6,14 +6,13 @@ use std::sync::Arc;
 
 use anyhow::{Context, Result};
 use clap::Args;
-use ivp_core::nn::model::Variant;
 
 use crate::checkpoint::export_model;
 use crate::demo::{demo_config, demo_methods, evaluation_data, model_path, plan_training, DemoTraining};
 use crate::distributed::{broadcast_from_root, ProcessGroup, SingleProcess};
 use crate::eval::{evaluate, format_table, DEFAULT_TARGETS};
 use crate::onnx::{export_onnx, OPSET};
-use crate::train::{train, train_on, RunOptions, TrainConfig};
+use crate::train::{train, train_on, RunOptions, TrainConfig, TrainOverrides};
 
 #[derive(Args)]
 pub struct TrainArgs {
@@ -26,37 +25,9 @@ pub struct TrainArgs {
     /// A TOML file of training settings (any of the fields of `TrainConfig`); flags override it.
     #[arg(long)]
     config: Option<PathBuf>,
-    /// full, intensity, no-tg (zeros for the temporal prior) or no-depth (no depth head).
-    #[arg(long)]
-    variant: Option<Variant>,
-    /// Width multiplier of the U-Net: 1 = the paper's widths (64 ... 256); recipe: 0.25.
-    #[arg(long)]
-    width_mult: Option<f64>,
-    /// Width multiplier of the depth head: 1 = the paper's widths (16, 32, 16) at any
-    /// --width-mult; 0.5 makes the network cheaper per pixel (recipe: 1).
-    #[arg(long)]
-    depth_head_mult: Option<f64>,
-    /// Training steps (recipe: 5000, about 13 minutes on 2 cores).
-    #[arg(long)]
-    steps: Option<u64>,
-    /// Crops per step (recipe: 16).
-    #[arg(long)]
-    batch: Option<usize>,
-    /// Side of the square training crops, centred on a disocclusion (recipe: 64).
-    #[arg(long)]
-    crop: Option<usize>,
-    /// Peak learning rate of Adam, after a warm-up and before a cosine decay (recipe: 1e-3).
-    #[arg(long)]
-    lr: Option<f64>,
-    /// Seed of the data and of the initial weights: the same seed gives the same run (recipe: 0).
-    #[arg(long)]
-    seed: Option<u64>,
-    /// Steps between checkpoints.
-    #[arg(long)]
-    checkpoint_every: Option<u64>,
-    /// Steps between validations (0: only at the end).
-    #[arg(long)]
-    validate_every: Option<u64>,
+    /// Settings that override the configuration (the recipe's defaults: `TrainConfig`).
+    #[command(flatten)]
+    overrides: TrainOverrides,
     /// The run folder: config.toml, metrics.csv, loss.png, checkpoints/, model.safetensors.
     #[arg(long)]
     out: PathBuf,
@@ -185,10 +156,7 @@ fn train_config(args: &TrainArgs) -> Result<TrainConfig> {
     if args.synthetic {
         config.data = None;
     }
-    macro_rules! set {
-        ($($field:ident),*) => {$(if let Some(v) = args.$field.clone() { config.$field = v; })*};
-    }
-    set!(variant, width_mult, depth_head_mult, steps, batch, crop, lr, seed, checkpoint_every, validate_every);
+    let config = args.overrides.apply(&config)?;
     config.validate()?;
     Ok(config)
 }
