@@ -55,8 +55,11 @@ pub struct MetricsRow {
 }
 
 const METRICS_HEADER: &str = "step,mse,ssim,smooth,guide,total,val_d_mse,val_d_ssim,fill_d_mse,fill_d_ssim,\
-                              val_hd_d_mse,val_hd_d_ssim,fill_hd_d_mse,fill_hd_d_ssim,elapsed_s";
-const METRICS_FIELDS: usize = 15;
+                              val_hd_d_mse,val_hd_d_ssim,fill_hd_d_mse,fill_hd_d_ssim,\
+                              val_real_d_mse,val_real_d_ssim,fill_real_d_mse,fill_real_d_ssim,elapsed_s";
+const METRICS_FIELDS: usize = 19;
+/// Rows of runs written before the real clips' columns existed.
+const METRICS_FIELDS_WITHOUT_REAL: usize = 15;
 
 /// Two fields, D-MSE and D-SSIM, empty where there is no score.
 fn score_fields(s: Option<ValidationScores>) -> String {
@@ -112,7 +115,7 @@ impl MetricsLog {
         for r in &self.rows {
             let v = r.validation.unwrap_or_default();
             text.push_str(&format!(
-                "{},{:.6},{:.6},{:.6},{:.6},{:.6},{},{},{},{},{:.1}\n",
+                "{},{:.6},{:.6},{:.6},{:.6},{:.6},{},{},{},{},{},{},{:.1}\n",
                 r.step,
                 r.loss.mse,
                 r.loss.ssim,
@@ -123,6 +126,8 @@ impl MetricsLog {
                 score_fields(r.fill.small),
                 score_fields(v.large),
                 score_fields(r.fill.large),
+                score_fields(v.real),
+                score_fields(r.fill.real),
                 r.elapsed.as_secs_f64()
             ));
         }
@@ -133,16 +138,22 @@ impl MetricsLog {
 
 fn parse_row(line: &str) -> Result<MetricsRow> {
     let f: Vec<&str> = line.split(',').collect();
-    ensure!(f.len() == METRICS_FIELDS, "{} fields, expected {METRICS_FIELDS}", f.len());
+    ensure!(
+        f.len() == METRICS_FIELDS || f.len() == METRICS_FIELDS_WITHOUT_REAL,
+        "{} fields, expected {METRICS_FIELDS} (or {METRICS_FIELDS_WITHOUT_REAL} in runs of older versions)",
+        f.len()
+    );
+    let has_real = f.len() == METRICS_FIELDS;
     let num =
         |i: usize| -> Result<f64> { f[i].parse::<f64>().with_context(|| format!("field {} is `{}`", i + 1, f[i])) };
     let scores = |i: usize| -> Result<Option<ValidationScores>> {
         (!f[i].is_empty()).then(|| Ok(ValidationScores { d_mse: num(i)?, d_ssim: num(i + 1)? })).transpose()
     };
-    let report = |small: usize, large: usize| -> Result<ValidationReport> {
-        Ok(ValidationReport { small: scores(small)?, large: scores(large)? })
+    let report = |small: usize, large: usize, real: usize| -> Result<ValidationReport> {
+        let real = if has_real { scores(real)? } else { None };
+        Ok(ValidationReport { small: scores(small)?, large: scores(large)?, real })
     };
-    let validation = report(6, 10)?;
+    let validation = report(6, 10, 14)?;
     Ok(MetricsRow {
         step: f[0].parse().with_context(|| format!("step `{}`", f[0]))?,
         loss: LossValues {
@@ -153,8 +164,8 @@ fn parse_row(line: &str) -> Result<MetricsRow> {
             total: num(5)? as f32,
         },
         validation: (validation != ValidationReport::default()).then_some(validation),
-        fill: report(8, 12)?,
-        elapsed: Duration::from_secs_f64(num(14)?.max(0.0)),
+        fill: report(8, 12, 16)?,
+        elapsed: Duration::from_secs_f64(num(f.len() - 1)?.max(0.0)),
     })
 }
 
@@ -166,6 +177,7 @@ mod tests {
         ValidationReport {
             small: Some(ValidationScores { d_mse, d_ssim }),
             large: Some(ValidationScores { d_mse: 2.0 * d_mse, d_ssim }),
+            real: Some(ValidationScores { d_mse: 3.0 * d_mse, d_ssim }),
         }
     }
 
@@ -191,6 +203,18 @@ mod tests {
         assert_eq!(resumed.rows()[1].fill, row(50, None).fill, "a size without frames reads back as none");
         assert_eq!(resumed.rows()[0].loss, row(25, None).loss);
         assert_eq!(resumed.last_elapsed(), Duration::from_secs(50));
+    }
+
+    #[test]
+    fn rows_of_runs_before_the_real_clips_columns_still_read() {
+        // The last row of results/ablate/full/seed0/metrics.csv's format (15 fields).
+        let old = "5000,0.003326,0.052108,0.713894,0.000000,0.056148,233.725,0.84265,350.641,0.79422,,,,,1501.4";
+        let row = parse_row(old).unwrap();
+        let scores = |d_mse, d_ssim| Some(ValidationScores { d_mse, d_ssim });
+        assert_eq!(row.validation, Some(ValidationReport { small: scores(233.725, 0.84265), large: None, real: None }));
+        assert_eq!(row.fill, ValidationReport { small: scores(350.641, 0.79422), large: None, real: None });
+        assert_eq!((row.step, row.elapsed), (5000, Duration::from_secs_f64(1501.4)));
+        assert!(parse_row(&old.replacen(",1501.4", ",,1501.4", 1)).is_err(), "16 fields is neither format");
     }
 
     #[test]

@@ -87,9 +87,10 @@ fn loss_panel(rows: &[MetricsRow]) -> Panel {
 /// good as `fill`), so that both sizes share one axis.
 fn validation_panel(rows: &[MetricsRow], max_step: f64) -> Panel {
     type SizeOf = fn(&ValidationReport) -> Option<ValidationScores>;
-    let sizes: [(&str, SizeOf); 2] = [("320x240", |r| r.small), ("1920x1080", |r| r.large)];
+    let sizes: [(&str, SizeOf); 3] = [("320x240", |r| r.small), ("1920x1080", |r| r.large), ("real clips", |r| r.real)];
     let mut curves = Vec::new();
-    for (i, (name, size)) in sizes.into_iter().enumerate() {
+    // fill's line takes colour 2.
+    for ((name, size), colour) in sizes.into_iter().zip([0, 1, 3]) {
         let points: Vec<(f64, f64)> = rows
             .iter()
             .filter_map(|r| {
@@ -100,7 +101,7 @@ fn validation_panel(rows: &[MetricsRow], max_step: f64) -> Panel {
         if !points.is_empty() {
             curves.push(Curve {
                 label: format!("network, {name}"),
-                colour: ivp_plot::colour(i),
+                colour: ivp_plot::colour(colour),
                 points,
                 markers: true,
             });
@@ -179,6 +180,7 @@ mod tests {
         let scores = |d_mse: f64| ValidationReport {
             small: Some(ValidationScores { d_mse, d_ssim: 0.8 }),
             large: Some(ValidationScores { d_mse: 1.5 * d_mse, d_ssim: 0.7 }),
+            real: Some(ValidationScores { d_mse: 2.0 * d_mse, d_ssim: 0.6 }),
         };
         let fill = scores(350.0);
         let row = |step: u64, total: f32, validation: Option<f64>| MetricsRow {

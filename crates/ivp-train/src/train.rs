@@ -87,6 +87,10 @@ pub struct TrainConfig {
     pub validation_clips: usize,
     /// Validation clips of 6 frames at 1920x1080 (3 targets each).
     pub validation_hd_clips: usize,
+    /// A folder of real clips (12 frames or more) scored at every validation beside the generated
+    /// ones, at targets 6, 8 and 10: of what a run prints, the figure that ranks runs as other real
+    /// renders do (validation.rs). Keep it out of what you will judge the model on.
+    pub validation_data: Option<PathBuf>,
     /// Iterations of the test-time infilling in validation (ALGORITHMS.md §6.5).
     pub iterations: usize,
     /// Steps between two checkpoints.
@@ -122,6 +126,7 @@ impl Default for TrainConfig {
             validation_seed: 20_261_204,
             validation_clips: 8,
             validation_hd_clips: 2,
+            validation_data: None,
             iterations: ivp_core::infill::DEFAULT_ITERATIONS,
             checkpoint_every: 250,
             keep_checkpoints: 3,
@@ -178,6 +183,11 @@ pub struct TrainOverrides {
     #[arg(long)]
     #[serde(skip_serializing_if = "Option::is_none")]
     pub validate_every: Option<u64>,
+    /// A folder of real clips to validate on besides the generated frames (12 frames or more
+    /// each; targets 6, 8, 10), e.g. data/blender-dev.
+    #[arg(long)]
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub validation_data: Option<PathBuf>,
 }
 
 impl TrainOverrides {
@@ -273,6 +283,7 @@ impl TrainConfig {
             seed: self.validation_seed,
             clips: self.validation_clips,
             hd_clips: self.validation_hd_clips,
+            data: self.validation_data.clone(),
         }
     }
 
@@ -351,7 +362,7 @@ pub fn train_on(
     let config_json = serde_json::to_string(config)?;
 
     let source = config.source()?;
-    let validation = ValidationSet::new(&config.validation_config());
+    let validation = ValidationSet::new(&config.validation_config())?;
     let fill = validation.score_fill(group)?;
     let generator = SampleGenerator::new(source, config.sample_config(), Split::Train)?.with_batch_part(batch_part)?;
     let mut stream = SampleStream::start(
@@ -660,6 +671,7 @@ mod tests {
             seed: Some(9),
             checkpoint_every: Some(11),
             validate_every: Some(13),
+            validation_data: Some(PathBuf::from("real")),
         };
         let want = TrainConfig {
             variant: Variant::NoDepth,
@@ -672,6 +684,7 @@ mod tests {
             seed: 9,
             checkpoint_every: 11,
             validate_every: 13,
+            validation_data: Some(PathBuf::from("real")),
             ..recipe.clone()
         };
         assert_eq!(overrides.apply(&recipe).unwrap(), want);
