@@ -18,12 +18,15 @@ pub struct LossValues {
     /// The guide term (0 once it has faded), already weighted.
     pub guide: f32,
     pub total: f32,
+    /// The global norm of the step's gradients before any clipping; a window keeps its largest.
+    pub grad_norm: f32,
 }
 
 /// Training losses accumulated between two log rows.
 #[derive(Default)]
 pub struct LossWindow {
     sum: [f64; 5],
+    max_grad_norm: f32,
     count: u32,
 }
 
@@ -32,15 +35,17 @@ impl LossWindow {
         for (s, v) in self.sum.iter_mut().zip([l.mse, l.ssim, l.smooth, l.guide, l.total]) {
             *s += v as f64;
         }
+        self.max_grad_norm = self.max_grad_norm.max(l.grad_norm);
         self.count += 1;
     }
 
-    /// The mean since the last call.
+    /// The mean since the last call (the largest gradient norm).
     pub fn take(&mut self) -> LossValues {
         let n = self.count.max(1) as f64;
         let m = self.sum.map(|s| (s / n) as f32);
+        let grad_norm = self.max_grad_norm;
         *self = Self::default();
-        LossValues { mse: m[0], ssim: m[1], smooth: m[2], guide: m[3], total: m[4] }
+        LossValues { mse: m[0], ssim: m[1], smooth: m[2], guide: m[3], total: m[4], grad_norm }
     }
 }
 
@@ -56,9 +61,9 @@ pub struct MetricsRow {
 
 const METRICS_HEADER: &str = "step,mse,ssim,smooth,guide,total,val_d_mse,val_d_ssim,fill_d_mse,fill_d_ssim,\
                               val_hd_d_mse,val_hd_d_ssim,fill_hd_d_mse,fill_hd_d_ssim,\
-                              val_real_d_mse,val_real_d_ssim,fill_real_d_mse,fill_real_d_ssim,elapsed_s";
-const METRICS_FIELDS: usize = 19;
-/// Rows of runs written before the real clips' columns existed.
+                              val_real_d_mse,val_real_d_ssim,fill_real_d_mse,fill_real_d_ssim,max_grad_norm,elapsed_s";
+const METRICS_FIELDS: usize = 20;
+/// Rows of runs written before the real clips' and the gradient norm's columns existed.
 const METRICS_FIELDS_WITHOUT_REAL: usize = 15;
 
 /// Two fields, D-MSE and D-SSIM, empty where there is no score.
@@ -115,7 +120,7 @@ impl MetricsLog {
         for r in &self.rows {
             let v = r.validation.unwrap_or_default();
             text.push_str(&format!(
-                "{},{:.6},{:.6},{:.6},{:.6},{:.6},{},{},{},{},{},{},{:.1}\n",
+                "{},{:.6},{:.6},{:.6},{:.6},{:.6},{},{},{},{},{},{},{:.4},{:.1}\n",
                 r.step,
                 r.loss.mse,
                 r.loss.ssim,
@@ -128,6 +133,7 @@ impl MetricsLog {
                 score_fields(r.fill.large),
                 score_fields(v.real),
                 score_fields(r.fill.real),
+                r.loss.grad_norm,
                 r.elapsed.as_secs_f64()
             ));
         }
@@ -143,14 +149,14 @@ fn parse_row(line: &str) -> Result<MetricsRow> {
         "{} fields, expected {METRICS_FIELDS} (or {METRICS_FIELDS_WITHOUT_REAL} in runs of older versions)",
         f.len()
     );
-    let has_real = f.len() == METRICS_FIELDS;
+    let current = f.len() == METRICS_FIELDS;
     let num =
         |i: usize| -> Result<f64> { f[i].parse::<f64>().with_context(|| format!("field {} is `{}`", i + 1, f[i])) };
     let scores = |i: usize| -> Result<Option<ValidationScores>> {
         (!f[i].is_empty()).then(|| Ok(ValidationScores { d_mse: num(i)?, d_ssim: num(i + 1)? })).transpose()
     };
     let report = |small: usize, large: usize, real: usize| -> Result<ValidationReport> {
-        let real = if has_real { scores(real)? } else { None };
+        let real = if current { scores(real)? } else { None };
         Ok(ValidationReport { small: scores(small)?, large: scores(large)?, real })
     };
     let validation = report(6, 10, 14)?;
@@ -162,6 +168,7 @@ fn parse_row(line: &str) -> Result<MetricsRow> {
             smooth: num(3)? as f32,
             guide: num(4)? as f32,
             total: num(5)? as f32,
+            grad_norm: if current { num(18)? as f32 } else { 0.0 },
         },
         validation: (validation != ValidationReport::default()).then_some(validation),
         fill: report(8, 12, 16)?,
@@ -182,7 +189,7 @@ mod tests {
     }
 
     fn row(step: u64, validation: Option<ValidationReport>) -> MetricsRow {
-        let loss = LossValues { mse: 0.5, ssim: 0.25, smooth: 0.125, guide: 0.0, total: 0.875 };
+        let loss = LossValues { mse: 0.5, ssim: 0.25, smooth: 0.125, guide: 0.0, total: 0.875, grad_norm: 2.5 };
         let fill = ValidationReport { large: None, ..report(581.5, 0.75) };
         MetricsRow { step, loss, validation, fill, elapsed: Duration::from_secs(step) }
     }
@@ -220,9 +227,10 @@ mod tests {
     #[test]
     fn losses_are_averaged_over_the_steps_of_a_row() {
         let mut window = LossWindow::default();
-        window.add(&LossValues { total: 1.0, ..Default::default() });
-        window.add(&LossValues { total: 3.0, ..Default::default() });
-        assert_eq!(window.take().total, 2.0);
+        window.add(&LossValues { total: 1.0, grad_norm: 4.0, ..Default::default() });
+        window.add(&LossValues { total: 3.0, grad_norm: 0.5, ..Default::default() });
+        let mean = window.take();
+        assert_eq!((mean.total, mean.grad_norm), (2.0, 4.0), "the mean loss, the largest norm");
         assert_eq!(window.take().total, 0.0, "take starts a new window");
     }
 }

@@ -185,7 +185,7 @@ mod tests {
         let fill = scores(350.0);
         let row = |step: u64, total: f32, validation: Option<f64>| MetricsRow {
             step,
-            loss: LossValues { mse: total / 5.0, ssim: total * 0.8, smooth: 0.0, guide: 0.0, total },
+            loss: LossValues { mse: total / 5.0, ssim: total * 0.8, smooth: 0.0, guide: 0.0, total, grad_norm: 1.0 },
             validation: validation.map(scores),
             fill,
             elapsed: std::time::Duration::from_secs(step),

@@ -70,6 +70,9 @@ pub struct TrainConfig {
     pub guide: GuideChoice,
     /// Peak learning rate of Adam.
     pub lr: f64,
+    /// Gradients whose global norm exceeds this are scaled down to it before Adam's update (0:
+    /// never). metrics.csv logs the largest norm of each window (`max_grad_norm`).
+    pub max_grad_norm: f64,
     /// Steps of linear warm-up from 0 to `lr`.
     pub warmup_steps: u64,
     /// Learning rate at the last step, as a fraction of `lr` (cosine decay after the warm-up;
@@ -118,6 +121,7 @@ impl Default for TrainConfig {
             guide_steps: 500,
             guide: GuideChoice::Auto,
             lr: 1e-3,
+            max_grad_norm: 0.0,
             warmup_steps: 100,
             final_lr_fraction: 0.1,
             seed: 0,
@@ -231,6 +235,11 @@ impl TrainConfig {
             self.frame_scales
         );
         ensure!(self.lr > 0.0 && self.lr.is_finite(), "lr must be a positive number, got {}", self.lr);
+        ensure!(
+            self.max_grad_norm >= 0.0 && self.max_grad_norm.is_finite(),
+            "max_grad_norm must be 0 (off) or a positive number, got {}",
+            self.max_grad_norm
+        );
         ensure!(
             (0.0..=1.0).contains(&self.final_lr_fraction),
             "final_lr_fraction must be in [0, 1], got {}",
@@ -352,7 +361,9 @@ pub fn train_on(
     let checkpoints = run_dir.join("checkpoints");
 
     let (net, varmap) = IvpNet::seeded(model_config, config.seed)?;
-    let mut optimizer = Adam::new(named_parameters(&varmap), AdamConfig { lr: config.lr, ..AdamConfig::default() })?;
+    let max_grad_norm = (config.max_grad_norm > 0.0).then_some(config.max_grad_norm);
+    let mut optimizer =
+        Adam::new(named_parameters(&varmap), AdamConfig { lr: config.lr, max_grad_norm, ..AdamConfig::default() })?;
     let mut run = match is_root {
         true => Some(open_run_folder(config, run_dir, options.resume, &varmap, &mut optimizer)?),
         false => None,
@@ -554,8 +565,8 @@ pub fn training_step(
     group: &dyn ProcessGroup,
 ) -> Result<LossValues> {
     let (values, grads) = batch_gradients(net, optimizer.parameters(), input, truth, weights, guide, group)?;
-    optimizer.step(&grads)?;
-    Ok(values)
+    let grad_norm = optimizer.step(&grads)?;
+    Ok(LossValues { grad_norm: grad_norm as f32, ..values })
 }
 
 /// The losses of the whole batch and the gradients of its loss (summed over the ranks) with
@@ -597,6 +608,7 @@ pub fn batch_gradients(
         smooth: smooth as f32,
         guide: guide as f32,
         total: total_value as f32,
+        grad_norm: 0.0,
     };
     if !values.total.is_finite() {
         bail!("the loss is not finite ({values:?})");

@@ -13,11 +13,14 @@ pub struct AdamConfig {
     pub beta1: f64,
     pub beta2: f64,
     pub eps: f64,
+    /// Gradients whose global norm (over every parameter) exceeds this are scaled down to it
+    /// before the update; `None` (PyTorch's Adam) never scales.
+    pub max_grad_norm: Option<f64>,
 }
 
 impl Default for AdamConfig {
     fn default() -> Self {
-        Self { lr: 1e-4, beta1: 0.9, beta2: 0.999, eps: 1e-8 }
+        Self { lr: 1e-4, beta1: 0.9, beta2: 0.999, eps: 1e-8, max_grad_norm: None }
     }
 }
 
@@ -57,14 +60,28 @@ impl Adam {
         self.config.lr = lr;
     }
 
-    /// One update from the gradients of a backward pass; parameters without a gradient are left alone.
-    pub fn step(&mut self, grads: &GradStore) -> Result<()> {
+    /// One update from the gradients of a backward pass; parameters without a gradient are left
+    /// alone. Returns the gradients' global norm, before any scaling by `max_grad_norm`.
+    pub fn step(&mut self, grads: &GradStore) -> Result<f64> {
         self.steps += 1;
-        let AdamConfig { lr, beta1, beta2, eps } = self.config;
+        let AdamConfig { lr, beta1, beta2, eps, max_grad_norm } = self.config;
         let t = self.steps as i32;
         let (bias1, bias2) = (1.0 - beta1.powi(t), 1.0 - beta2.powi(t));
+        let norm = self.gradient_norm(grads)?;
+        let scale = match max_grad_norm {
+            Some(max) if norm > max => Some(max / norm),
+            _ => None,
+        };
         for (i, (_, param)) in self.params.iter().enumerate() {
             let Some(g) = grads.get(param.as_tensor()) else { continue };
+            let scaled;
+            let g = match scale {
+                Some(s) => {
+                    scaled = (g * s)?;
+                    &scaled
+                }
+                None => g,
+            };
             let m = ((&self.first_moments[i] * beta1)? + (g * (1.0 - beta1))?)?;
             let v = ((&self.second_moments[i] * beta2)? + (g.sqr()? * (1.0 - beta2))?)?;
             let denominator = ((&v / bias2)?.sqrt()? + eps)?;
@@ -73,7 +90,18 @@ impl Adam {
             self.first_moments[i] = m;
             self.second_moments[i] = v;
         }
-        Ok(())
+        Ok(norm)
+    }
+
+    /// The Euclidean norm of every parameter's gradient together (in f64).
+    pub fn gradient_norm(&self, grads: &GradStore) -> Result<f64> {
+        let mut sum = 0.0;
+        for (_, param) in &self.params {
+            if let Some(g) = grads.get(param.as_tensor()) {
+                sum += g.to_dtype(candle_core::DType::F64)?.sqr()?.sum_all()?.to_scalar::<f64>()?;
+            }
+        }
+        Ok(sum.sqrt())
     }
 
     /// The moments as named tensors (`adam.m.NAME`, `adam.v.NAME`) and the step count, for a checkpoint.
@@ -125,6 +153,41 @@ mod tests {
         let got: Vec<f32> = p.as_tensor().to_vec1().unwrap();
         // Bias-corrected m / sqrt(v) = sign(g) on the first step (0 where g = 0).
         assert!((got[0] - 0.1).abs() < 1e-6 && (got[1] - 4.9).abs() < 1e-6 && got[2] == 3.0, "{got:?}");
+    }
+
+    #[test]
+    fn gradients_above_the_largest_norm_are_scaled_down_to_it() {
+        let max = 1.0;
+        let start = [0.0, 5.0, 3.0, -1.0];
+        let adam = |p: &Var, max_grad_norm| {
+            let config = AdamConfig { lr: 0.5, max_grad_norm, ..Default::default() };
+            Adam::new([("p".to_string(), p.clone())], config).unwrap()
+        };
+        let (clipped, by_hand, unclipped) = (var(&start), var(&start), var(&start));
+        let (mut a, mut b, mut c) = (adam(&clipped, Some(max)), adam(&by_hand, None), adam(&unclipped, None));
+        for _ in 0..4 {
+            // By hand: the loss scaled so that its gradient has norm `max` when it had more.
+            let grads = loss_grads(&by_hand);
+            let norm = b.gradient_norm(&grads).unwrap();
+            let want: f64 =
+                by_hand.as_tensor().to_vec1::<f32>().unwrap().iter().map(|x| (2.0 * (*x as f64 - 3.0)).powi(2)).sum();
+            assert!((norm - want.sqrt()).abs() < 1e-6 * want.sqrt(), "{norm} vs {}", want.sqrt());
+            let grads = match norm > max {
+                true => ((by_hand.as_tensor() - 3.0).unwrap().sqr().unwrap().sum_all().unwrap() * (max / norm))
+                    .unwrap()
+                    .backward()
+                    .unwrap(),
+                false => grads,
+            };
+            b.step(&grads).unwrap();
+            assert_eq!(a.step(&loss_grads(&clipped)).unwrap(), norm, "the norm before scaling");
+            c.step(&loss_grads(&unclipped)).unwrap();
+        }
+        let values = |p: &Var| p.as_tensor().to_vec1::<f32>().unwrap();
+        let (got, want) = (values(&clipped), values(&by_hand));
+        assert!(got.iter().zip(&want).all(|(x, y)| (x - y).abs() < 1e-6), "{got:?} vs {want:?}");
+        let free = values(&unclipped);
+        assert!(got.iter().zip(&free).any(|(x, y)| (x - y).abs() > 1e-3), "clipping changed nothing: {got:?}");
     }
 
     #[test]
