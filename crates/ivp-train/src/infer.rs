@@ -6,11 +6,10 @@ use std::path::{Path, PathBuf};
 use anyhow::{bail, Context, Result};
 use ivp_core::geometry::image::to_u8;
 use ivp_core::geometry::FrameView;
-use ivp_core::geometry::{NearestKnown, PixelClass};
 use ivp_core::inference::{ModelInfiller, ModelPrediction};
 use ivp_core::infill::{classical_infiller, InfillContext};
 use ivp_core::nn::tensor::to_tensor;
-use ivp_core::prior::{background_depth_thresholds_at, target_prior};
+use ivp_core::prior::{background_depth_threshold, target_prior};
 use ivp_core::{DepthMap, RgbImage, Warp};
 use ivp_data::{write_gray_png, write_rgb_png, Clip, Frame};
 
@@ -49,7 +48,8 @@ pub fn predict_target(model: &ModelInfiller, clip: &Clip, t: usize) -> Result<(M
 /// method's frame: where a vector reads nothing, even walked, or reads the foreground, the pixel
 /// takes its value), `threshold` (each disocclusion pixel's background depth threshold, 0 where it
 /// has none and off the disocclusions: a read of depth `d` with `d * FOREGROUND_DEPTH_RATIO <
-/// threshold` takes the `fill` value) and the target frame `truth`. `examples/onnx/run_onnx.py` infills and scores from it.
+/// threshold` takes the `fill` value) and the target frame `truth`. `examples/onnx/run_onnx.py`
+/// infills and scores from it.
 pub fn write_network_inputs(clip: &Clip, t: usize, path: &Path) -> Result<()> {
     if t < 3 || t >= clip.len() {
         bail!(
@@ -69,19 +69,19 @@ pub fn write_network_inputs(clip: &Clip, t: usize, path: &Path) -> Result<()> {
             [f32::from(u8::from(mask[y * warp.depth.width() + x]))]
         })
     };
-    let disocclusions = warp.holes.indices_of(PixelClass::Disocclusion);
-    let nearest = NearestKnown::new(warp.depth.width(), warp.depth.height(), &known);
-    let mut threshold = DepthMap::zeros(warp.depth.width(), warp.depth.height());
-    for (&i, t) in disocclusions.iter().zip(background_depth_thresholds_at(&nearest, &warp.depth, &disocclusions)) {
-        threshold.pixels_mut()[i] = [t.unwrap_or(0.0)];
-    }
+    let thresholds = background_depth_threshold(&known, &warp.depth);
+    let disocclusions = warp.holes.disocclusions();
+    let threshold = DepthMap::from_fn(warp.depth.width(), warp.depth.height(), |x, y| {
+        let i = y * warp.depth.width() + x;
+        [if disocclusions[i] { thresholds[i].unwrap_or(0.0) } else { 0.0 }]
+    });
     let fill = classical_infiller("fill").expect("`fill` is a classical method").infill(&ctx)?.image;
     let truth = clip.load_frame(t)?.image;
     let tensors = [
         ("prior", to_tensor(&prior)?),
         // The warp leaves 0 in its holes: the infilling's depth input as it is.
         ("depth", to_tensor(&warp.depth)?),
-        ("hole", to_tensor(&as_map(&warp.holes.disocclusions()))?),
+        ("hole", to_tensor(&as_map(&disocclusions))?),
         ("warped", to_tensor(&warp.image)?),
         ("known", to_tensor(&as_map(&known))?),
         ("fill", to_tensor(&fill)?),
