@@ -10,7 +10,8 @@ use ivp_train::checkpoint::{export_model, load_checkpoint, load_model};
 use ivp_train::eval::{evaluate, Method};
 use ivp_train::train::{latest_checkpoint, train, RunOptions, TrainConfig};
 
-/// A run small enough for a test: width 1/8, 2 crops of 32x32 per step, 4 validation crops.
+/// A run small enough for a test: width 1/8, 2 crops of 32x32 per step, one generated validation
+/// clip and no real one.
 fn tiny(steps: u64) -> TrainConfig {
     TrainConfig {
         width_mult: 0.125,
@@ -24,6 +25,7 @@ fn tiny(steps: u64) -> TrainConfig {
         validation_hd_clips: 0,
         checkpoint_every: 3,
         keep_checkpoints: 10,
+        validation_data: None,
         ..TrainConfig::default()
     }
 }
@@ -222,4 +224,60 @@ fn a_run_can_write_the_mean_of_its_last_checkpoints_as_its_model() {
     // More checkpoints to average than are kept is refused before training.
     let bad = TrainConfig { average_checkpoints: 11, ..tiny(6) }.validate().unwrap_err().to_string();
     assert!(bad.contains("average_checkpoints"), "{bad}");
+}
+
+#[test]
+fn a_run_validated_on_real_clips_keeps_the_checkpoint_they_score_best() {
+    let dir = tempfile::tempdir().unwrap();
+    let (whole, parts) = (dir.path().join("whole"), dir.path().join("parts"));
+    let config = TrainConfig {
+        validation_data: Some(ivp_tests::blender_dev().join("clip_002")),
+        validate_every: 2,
+        checkpoint_every: 2,
+        keep_checkpoints: 1,
+        select_from: 0.25,
+        validation_clips: 0,
+        // Unclipped, this seed's tiny run is not at its best at its last step (asserted below).
+        max_grad_norm: 0.0,
+        ..tiny(8)
+    };
+    let summary = train(&config, &whole, &quiet()).unwrap();
+
+    // The real-clip D-MSE of each validation (metrics.csv's column val_real_d_mse) from step 2 on.
+    let log = std::fs::read_to_string(whole.join("metrics.csv")).unwrap();
+    let header: Vec<&str> = log.lines().next().unwrap().split(',').collect();
+    let column = header.iter().position(|&c| c == "val_real_d_mse").expect("a column of real-clip scores");
+    let scored: Vec<(u64, f64)> = log
+        .lines()
+        .skip(1)
+        .map(|line| line.split(',').collect::<Vec<_>>())
+        .filter(|fields| !fields[column].is_empty())
+        .map(|fields| (fields[0].parse().unwrap(), fields[column].parse().unwrap()))
+        .collect();
+    assert_eq!(scored.iter().map(|s| s.0).collect::<Vec<_>>(), [2, 4, 6, 8], "{log}");
+    let best = scored.iter().min_by(|a, b| a.1.total_cmp(&b.1)).unwrap().0;
+    assert_ne!(best, 8, "the test needs a run whose best validation is not its last step: {scored:?}");
+
+    let model = whole.join("model.safetensors");
+    assert_eq!(summary.model_step, Some(best));
+    assert_eq!(model_step(&model), best);
+    let kept = whole.join(format!("checkpoints/step_{best:08}.safetensors"));
+    let params: Vec<_> = parameters(&kept).into_iter().filter(|(n, _)| !n.starts_with("adam.")).collect();
+    assert_eq!(parameters(&model), params, "the model is the best checkpoint's parameters");
+    assert!(whole.join("checkpoints/step_00000008.safetensors").is_file(), "and the last checkpoint is kept too");
+    let real = summary.last_validation.and_then(|v| v.real).expect("the model's real-clip validation").d_mse;
+    assert_eq!(format!("{real:.3}"), format!("{:.3}", scored.iter().find(|s| s.0 == best).unwrap().1));
+
+    // Stopped and resumed, the run remembers its best checkpoint from metrics.csv.
+    train(&config, &parts, &RunOptions { stop_at: Some(5), ..quiet() }).unwrap();
+    let resumed = train(&config, &parts, &RunOptions { resume: true, ..quiet() }).unwrap();
+    assert_eq!(resumed.model_step, Some(best));
+    assert_eq!(parameters(&parts.join("model.safetensors")), parameters(&model));
+
+    // Without real clips the model is the last step's (select_from = 1 too: a unit test of train.rs).
+    let last = TrainConfig { validation_data: None, validation_clips: 1, ..config.clone() };
+    assert_eq!(train(&last, &dir.path().join("last"), &quiet()).unwrap().model_step, Some(8));
+    // Selection and averaging exclude each other.
+    let bad = TrainConfig { average_checkpoints: 2, keep_checkpoints: 2, ..config }.validate().unwrap_err().to_string();
+    assert!(bad.contains("select_from"), "{bad}");
 }

@@ -43,6 +43,8 @@ pub struct Sweep {
     pub steps: Option<u64>,
     /// The Blender clips (skipped when absent).
     pub blender: PathBuf,
+    /// The real clips every run validates on and chooses its model by (not `blender`'s).
+    pub validation_data: PathBuf,
     pub out: PathBuf,
     /// A few steps at small sizes: a smoke test of the whole pipeline.
     pub quick: bool,
@@ -185,6 +187,9 @@ fn train(ivp: &Path, sweep: &Sweep, variant: &str, seed: u64, dir: &Path) -> Res
     }
     if let Some(steps) = sweep.steps {
         cmd.args(["--steps", &steps.to_string()]);
+    }
+    if !sweep.quick {
+        cmd.arg("--validation-data").arg(&sweep.validation_data);
     }
     if dir.join("checkpoints").is_dir() {
         cmd.arg("--resume");

@@ -37,6 +37,10 @@ enum Task {
         /// The Blender clips to score on (besides the generated held-out split).
         #[arg(long, default_value = "data/blender-dev")]
         data: PathBuf,
+        /// The real clips each run validates on and chooses its model by (the recipe's
+        /// `validation_data`): never the clips of --data, which would then score their own choice.
+        #[arg(long, default_value = "data/blender-dev-extra")]
+        validation_data: PathBuf,
         /// Run folders go to `OUT/<variant>/seed<k>`, the tables to `OUT/ablations.{md,csv}`.
         #[arg(long, default_value = "runs/ablate")]
         out: PathBuf,
@@ -109,7 +113,7 @@ struct SpeedArgs {
 
 fn main() -> Result<()> {
     match Cli::parse().command {
-        Task::Ablate { seeds, steps, data, out, quick, ivp, report } => {
+        Task::Ablate { seeds, steps, data, validation_data, out, quick, ivp, report } => {
             ablate::check_seeds(&seeds)?;
             let ivp = match ivp {
                 Some(path) if path.is_file() => path,
@@ -118,7 +122,8 @@ fn main() -> Result<()> {
                 None => build_ivp(&root())?,
             };
             let out = if quick && out == Path::new("runs/ablate") { PathBuf::from("runs/ablate-quick") } else { out };
-            ablate::ablate(&ivp, &ablate::Sweep { seeds, steps, blender: data, out, quick, report })
+            let sweep = ablate::Sweep { seeds, steps, blender: data, validation_data, out, quick, report };
+            ablate::ablate(&ivp, &sweep)
         }
         Task::Bench { threads, speed, .. } if speed.speed_vs_error => bench_speed_vs_error(threads, speed),
         Task::Bench { torch: true, threads, runs, .. } => bench_against_torch(threads, runs),

@@ -10,11 +10,7 @@ use ivp_core::infill::{classical_infiller, DEFAULT_ITERATIONS};
 use crate::checkpoint::{load_checkpoint, load_model};
 use crate::eval::Method;
 use crate::train::{latest_checkpoint, TrainConfig};
-
-/// The repository's real Blender clips (data/README.md), which the demo prefers to score on. The
-/// path is relative to the working folder, so they are found when `ivp demo` runs from the
-/// repository's root, as the README's set-up command does; elsewhere the demo generates clips.
-const BLENDER_DEV_CLIPS: &str = "data/blender-dev";
+use crate::validation::REPOSITORY_CLIPS;
 
 /// Clips generated for scoring when the real ones are missing.
 const GENERATED_CLIPS: usize = 4;
@@ -57,7 +53,7 @@ pub fn evaluation_data(requested: Option<PathBuf>, run_dir: &Path) -> Result<Pat
     if let Some(dir) = requested {
         return Ok(dir);
     }
-    let blender_dev = PathBuf::from(BLENDER_DEV_CLIPS);
+    let blender_dev = PathBuf::from(REPOSITORY_CLIPS);
     if blender_dev.is_dir() {
         return Ok(blender_dev);
     }

@@ -40,7 +40,7 @@ use crate::guide::{Guide, GuideChoice, GuideSource, GuideTarget};
 use crate::metrics_csv::{LossWindow, MetricsLog, MetricsRow};
 use crate::plot::write_loss_curve;
 use crate::progress::progress_bar;
-use crate::validation::{ValidationConfig, ValidationReport, ValidationSet};
+use crate::validation::{ValidationConfig, ValidationReport, ValidationSet, REPOSITORY_CLIPS};
 
 /// What [`training_step`] returns; it lives with the rows of `metrics.csv` that hold its means.
 pub use crate::metrics_csv::LossValues;
@@ -71,7 +71,8 @@ pub struct TrainConfig {
     /// Peak learning rate of Adam.
     pub lr: f64,
     /// Gradients whose global norm exceeds this are scaled down to it before Adam's update (0:
-    /// never). metrics.csv logs the largest norm of each window (`max_grad_norm`).
+    /// never): without it one gradient of norm 6 ruined a seed of the recipe (results/recipe-hd).
+    /// metrics.csv logs the largest norm of each window (`max_grad_norm`).
     pub max_grad_norm: f64,
     /// Steps of linear warm-up from 0 to `lr`.
     pub warmup_steps: u64,
@@ -92,7 +93,9 @@ pub struct TrainConfig {
     pub validation_hd_clips: usize,
     /// A folder of real clips (12 frames or more) scored at every validation beside the generated
     /// ones, at targets 6, 8 and 10: of what a run prints, the figure that ranks runs as other real
-    /// renders do (validation.rs). Keep it out of what you will judge the model on.
+    /// renders do, and what chooses the model (`select_from`). By default the repository's
+    /// `data/blender-dev`, relative to the working folder (skipped with a warning when missing).
+    /// Keep it out of what you will judge the model on.
     pub validation_data: Option<PathBuf>,
     /// Iterations of the test-time infilling in validation (ALGORITHMS.md §6.5).
     pub iterations: usize,
@@ -103,6 +106,12 @@ pub struct TrainConfig {
     /// The model file is the mean of the parameters of this many last checkpoints (the last step's
     /// among them; 1: the last step alone). Must not exceed `keep_checkpoints`.
     pub average_checkpoints: usize,
+    /// With `validation_data`, the model file is the checkpoint that scored the lowest D-MSE on
+    /// those real clips among the validations from this fraction of `steps` on (the last step's
+    /// among them): checkpoints 250 steps apart differ by as much as seeds do, and real clips rank
+    /// them as other real renders do (results/recipe-hd). 1, or no `validation_data`: the last
+    /// step's. Incompatible with `average_checkpoints` above 1.
+    pub select_from: f64,
     /// Background threads that make batches.
     pub data_workers: usize,
 }
@@ -121,7 +130,7 @@ impl Default for TrainConfig {
             guide_steps: 500,
             guide: GuideChoice::Auto,
             lr: 1e-3,
-            max_grad_norm: 0.0,
+            max_grad_norm: 1.0,
             warmup_steps: 100,
             final_lr_fraction: 0.1,
             seed: 0,
@@ -130,11 +139,12 @@ impl Default for TrainConfig {
             validation_seed: 20_261_204,
             validation_clips: 8,
             validation_hd_clips: 2,
-            validation_data: None,
+            validation_data: Some(PathBuf::from(REPOSITORY_CLIPS)),
             iterations: ivp_core::infill::DEFAULT_ITERATIONS,
             checkpoint_every: 250,
             keep_checkpoints: 3,
             average_checkpoints: 1,
+            select_from: 0.5,
             data_workers: 1,
         }
     }
@@ -207,9 +217,10 @@ impl TrainOverrides {
 }
 
 impl TrainConfig {
-    /// The few-minute run of `ivp demo`: the default recipe, shorter.
+    /// The few-minute run of `ivp demo`: the default recipe, shorter, and without real clips to
+    /// choose its model by, since the demo then scores it on the repository's clips.
     pub fn demo() -> Self {
-        Self { steps: 1000, guide_steps: 300, validate_every: 250, ..Self::default() }
+        Self { steps: 1000, guide_steps: 300, validate_every: 250, validation_data: None, ..Self::default() }
     }
 
     /// Reads a TOML file of [`TrainConfig`] fields (any subset; the rest keep their defaults).
@@ -253,8 +264,23 @@ impl TrainConfig {
             self.keep_checkpoints,
             self.average_checkpoints
         );
+        ensure!((0.0..=1.0).contains(&self.select_from), "select_from must be in [0, 1], got {}", self.select_from);
+        ensure!(
+            self.average_checkpoints == 1 || self.selection_start().is_none(),
+            "average_checkpoints ({}) and selecting a checkpoint by its validation on validation_data \
+             (select_from {}) exclude each other: set select_from = 1 or average_checkpoints = 1",
+            self.average_checkpoints,
+            self.select_from
+        );
         ensure!(self.iterations > 0, "iterations must be at least 1");
         Ok(())
+    }
+
+    /// The first step whose checkpoint may become the model by its validation on real clips
+    /// (`select_from`), or `None` when the model is the last step's.
+    pub fn selection_start(&self) -> Option<u64> {
+        let start = (self.select_from * self.steps as f64).ceil() as u64;
+        (self.validation_data.is_some() && start < self.steps).then_some(start)
     }
 
     /// The target of the guide term (`None` for the variant without vectors).
@@ -335,9 +361,13 @@ pub struct TrainSummary {
     pub steps_run: u64,
     pub stopped_early: bool,
     pub elapsed: Duration,
+    /// The validation of the model file (of the last step when stopped early).
     pub last_validation: Option<ValidationReport>,
     pub fill: Option<ValidationReport>,
     pub model_path: Option<PathBuf>,
+    /// The step whose parameters the model file holds (`None` for a mean of checkpoints, or
+    /// when stopped early).
+    pub model_step: Option<u64>,
 }
 
 /// Trains a network as `config` says, in `run_dir`.
@@ -368,6 +398,10 @@ pub fn train_on(
         true => Some(open_run_folder(config, run_dir, options.resume, &varmap, &mut optimizer)?),
         false => None,
     };
+    let mut selection = Selection::new(config);
+    if let Some(run) = &run {
+        selection.recall(config, run.log.rows(), &checkpoints);
+    }
     let first_step = share_training_state(group, &mut optimizer, run.as_ref().map_or(0, |r| r.first_step))?;
     let elapsed_before = run.as_ref().map_or(Duration::ZERO, |r| r.log.last_elapsed());
     let config_json = serde_json::to_string(config)?;
@@ -391,14 +425,14 @@ pub fn train_on(
     let mut last_validation = None;
     let mut step = first_step;
     let mut stopped_early = false;
-    let checkpoint = |step: u64, optimizer: &Adam| -> Result<()> {
+    let checkpoint = |step: u64, optimizer: &Adam, protect: Option<u64>| -> Result<()> {
         if !is_root {
             return Ok(());
         }
-        let path = checkpoints.join(format!("step_{step:08}.safetensors"));
+        let path = checkpoint_path(&checkpoints, step);
         save_checkpoint(&path, &varmap, &model_config, optimizer, step, &config_json)?;
         tracing::info!(step, path = %path.display(), "checkpoint");
-        prune_checkpoints(&checkpoints, config.keep_checkpoints)
+        prune_checkpoints(&checkpoints, config.keep_checkpoints, protect)
     };
     while step < config.steps {
         let batch = stream.next_batch()?;
@@ -421,20 +455,23 @@ pub fn train_on(
                 tracing::info!(step, "validation: {line}");
                 bar.println(format!("step {step}: validation {line}"));
                 last_validation = Some(*s);
+                if is_checkpoint_step(config, step) {
+                    selection.offer(step, s);
+                }
             }
             if let Some(run) = &mut run {
                 run.log.push(MetricsRow { step, loss: window.take(), validation: scores, fill, elapsed: elapsed() });
                 run.log.save()?;
             }
         }
-        if step % config.checkpoint_every == 0 || step == config.steps {
-            checkpoint(step, &optimizer)?;
+        if is_checkpoint_step(config, step) {
+            checkpoint(step, &optimizer, selection.step())?;
         }
         // Ctrl-C reaches the ranks one by one (or only one): they stop together, after the same step.
         let interrupted = any_rank(group, options.stop.as_ref().is_some_and(|s| s.load(Ordering::SeqCst)));
         if (interrupted || options.stop_at == Some(step)) && step < config.steps {
             if step % config.checkpoint_every != 0 {
-                checkpoint(step, &optimizer)?;
+                checkpoint(step, &optimizer, selection.step())?;
             }
             bar.println(format!("stopped at step {step}; continue with --resume"));
             stopped_early = true;
@@ -444,15 +481,28 @@ pub fn train_on(
     bar.finish_and_clear();
     drop(stream);
     let model_path = (!stopped_early).then(|| run_dir.join("model.safetensors"));
+    let mut model_step = None;
     if let Some(run) = &mut run {
         if let Some(path) = &model_path {
-            if let Some(scores) = write_model(config, &checkpoints, path, &validation, &mut run.log)? {
+            if let Some((best, scores)) = selection.best {
+                export_model(&[checkpoint_path(&checkpoints, best)], path)?;
+                let real = config.validation_data.as_deref().unwrap_or(Path::new("")).display();
+                bar.println(format!(
+                    "model = step {best}, the lowest D-MSE on {real} since step {}: validation {}",
+                    selection.start.unwrap_or(0),
+                    scores.describe(&fill)
+                ));
+                last_validation = Some(scores);
+                model_step = Some(best);
+            } else if let Some(scores) = write_model(config, &checkpoints, path, &validation, &mut run.log)? {
                 bar.println(format!(
                     "model = mean of the last {} checkpoints: validation {}",
                     config.average_checkpoints,
                     scores.describe(&fill)
                 ));
                 last_validation = Some(scores);
+            } else {
+                model_step = Some(step);
             }
         }
         write_loss_curve(&run_dir.join("loss.png"), run.log.rows())?;
@@ -465,7 +515,57 @@ pub fn train_on(
         last_validation,
         fill: Some(fill),
         model_path,
+        model_step,
     })
+}
+
+/// The checkpoint that becomes the model when it is chosen by its validation on real clips
+/// ([`TrainConfig::select_from`]): the lowest real-clip D-MSE among the validations of
+/// checkpointed steps from `start` on. Its checkpoint is never pruned.
+#[derive(Clone, Copy, Debug)]
+struct Selection {
+    start: Option<u64>,
+    best: Option<(u64, ValidationReport)>,
+}
+
+impl Selection {
+    fn new(config: &TrainConfig) -> Self {
+        Self { start: config.selection_start(), best: None }
+    }
+
+    /// The step of the best checkpoint so far.
+    fn step(&self) -> Option<u64> {
+        self.best.map(|(step, _)| step)
+    }
+
+    /// Takes the validation of the checkpointed step `step` if it is the best so far.
+    fn offer(&mut self, step: u64, report: &ValidationReport) {
+        let (Some(start), Some(real)) = (self.start, report.real) else { return };
+        let best_d_mse = self.best.and_then(|(_, b)| b.real).map_or(f64::INFINITY, |b| b.d_mse);
+        if step >= start && real.d_mse < best_d_mse {
+            self.best = Some((step, *report));
+        }
+    }
+
+    /// On resume: the best of the validations logged before, among the checkpoints still on disk.
+    fn recall(&mut self, config: &TrainConfig, rows: &[MetricsRow], checkpoints: &Path) {
+        for row in rows {
+            if let Some(report) = &row.validation {
+                if is_checkpoint_step(config, row.step) && checkpoint_path(checkpoints, row.step).is_file() {
+                    self.offer(row.step, report);
+                }
+            }
+        }
+    }
+}
+
+/// Whether the run writes a checkpoint after step `step`.
+fn is_checkpoint_step(config: &TrainConfig, step: u64) -> bool {
+    step.is_multiple_of(config.checkpoint_every) || step == config.steps
+}
+
+fn checkpoint_path(checkpoints: &Path, step: u64) -> PathBuf {
+    checkpoints.join(format!("step_{step:08}.safetensors"))
 }
 
 /// Writes the model file of a finished run: the last step's parameters (in its last checkpoint),
@@ -651,9 +751,11 @@ fn checkpoint_files(dir: &Path) -> Result<Vec<PathBuf>> {
     Ok(files)
 }
 
-fn prune_checkpoints(dir: &Path, keep: usize) -> Result<()> {
+/// Deletes all but the last `keep` checkpoints and the one of step `protect`.
+fn prune_checkpoints(dir: &Path, keep: usize, protect: Option<u64>) -> Result<()> {
+    let protected = protect.map(|step| checkpoint_path(dir, step));
     let files = checkpoint_files(dir)?;
-    for old in &files[..files.len().saturating_sub(keep)] {
+    for old in files[..files.len().saturating_sub(keep)].iter().filter(|f| Some(*f) != protected.as_ref()) {
         std::fs::remove_file(old).with_context(|| format!("cannot delete old checkpoint {}", old.display()))?;
     }
     Ok(())
@@ -667,6 +769,49 @@ pub fn seeded_network(config: &TrainConfig) -> Result<(IvpNet, VarMap)> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::validation::ValidationScores;
+
+    #[test]
+    fn selection_keeps_the_lowest_real_clip_score_from_its_start() {
+        let real =
+            |d_mse| ValidationReport { real: Some(ValidationScores { d_mse, d_ssim: 0.5 }), ..Default::default() };
+        let config =
+            TrainConfig { steps: 100, select_from: 0.5, validation_data: Some("real".into()), ..Default::default() };
+        assert_eq!(config.selection_start(), Some(50));
+        let mut selection = Selection::new(&config);
+        selection.offer(25, &real(1.0));
+        assert_eq!(selection.step(), None, "before its start a step does not compete");
+        selection.offer(50, &real(3.0));
+        selection.offer(75, &real(2.0));
+        selection.offer(100, &real(2.5));
+        assert_eq!(selection.step(), Some(75));
+        selection.offer(100, &ValidationReport::default());
+        assert_eq!(selection.step(), Some(75), "a validation without real clips does not compete");
+
+        for off in [TrainConfig { validation_data: None, ..config.clone() }, TrainConfig { select_from: 1.0, ..config }]
+        {
+            assert_eq!(off.selection_start(), None);
+            let mut selection = Selection::new(&off);
+            selection.offer(75, &real(2.0));
+            assert_eq!(selection.step(), None);
+        }
+    }
+
+    #[test]
+    fn pruning_keeps_the_last_checkpoints_and_the_protected_one() {
+        let dir = tempfile::tempdir().unwrap();
+        for step in 1..=5 {
+            std::fs::write(checkpoint_path(dir.path(), step), b"").unwrap();
+        }
+        prune_checkpoints(dir.path(), 2, Some(2)).unwrap();
+        let left: Vec<PathBuf> = [2, 4, 5].map(|s| checkpoint_path(dir.path(), s)).into();
+        assert_eq!(checkpoint_files(dir.path()).unwrap(), left);
+        prune_checkpoints(dir.path(), 2, Some(5)).unwrap();
+        let left: Vec<PathBuf> = [4, 5].map(|s| checkpoint_path(dir.path(), s)).into();
+        assert_eq!(checkpoint_files(dir.path()).unwrap(), left, "a protected one among the last is not one more");
+        prune_checkpoints(dir.path(), 1, None).unwrap();
+        assert_eq!(checkpoint_files(dir.path()).unwrap(), [checkpoint_path(dir.path(), 5)]);
+    }
 
     #[test]
     fn every_override_sets_the_field_of_its_name() {

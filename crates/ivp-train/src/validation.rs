@@ -17,7 +17,7 @@
 //! In data-parallel training each rank scores its part of the frames, and every rank gets the
 //! scores of the whole set.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result};
 use ivp_core::inference::ModelInfiller;
@@ -70,6 +70,11 @@ impl ValidationReport {
     }
 }
 
+/// The repository's real Blender clips (data/README.md), relative to the working folder: the
+/// recipe validates on them (`TrainConfig::validation_data`) and `ivp demo` scores on them. They
+/// are found when ivp runs from the repository's root, as the README's commands do.
+pub const REPOSITORY_CLIPS: &str = "data/blender-dev";
+
 /// Which frames make the set: generated clips of a seed of their own.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct ValidationConfig {
@@ -119,7 +124,15 @@ impl ValidationSet {
             items.extend(targets.iter().map(|&target| Item { size, clip: clips.len(), target }));
             clips.push(ClipFrames { frames: clip.frames, poses: clip.poses, intrinsics: clip.intrinsics });
         }
-        if let Some(dir) = &config.data {
+        let missing_default = |dir: &PathBuf| dir.as_path() == Path::new(REPOSITORY_CLIPS) && !dir.exists();
+        if let Some(dir) = config.data.as_ref().filter(|dir| missing_default(dir)) {
+            tracing::warn!(
+                "no real clips to validate on: {} is not in the working folder (run from the repository's \
+                 root, or pass --validation-data DIR); the run validates on generated frames alone",
+                dir.display()
+            );
+        }
+        if let Some(dir) = config.data.as_ref().filter(|dir| !missing_default(dir)) {
             let paths = find_clips(dir).with_context(|| format!("validation data {}", dir.display()))?;
             for path in paths {
                 let clip = Clip::open(&path)?;

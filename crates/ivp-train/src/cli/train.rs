@@ -131,9 +131,10 @@ fn run_train_on(group: &dyn ProcessGroup, args: TrainArgs, progress: bool) -> Re
     if let (Some(v), Some(f)) = (summary.last_validation, summary.fill) {
         println!("validation after {} steps ({minutes:.1} min): {}", summary.steps_done, v.describe(&f));
     }
-    match &summary.model_path {
-        Some(path) => println!("model written to {}", path.display()),
-        None => println!("stopped at step {}: continue with --resume", summary.steps_done),
+    match (&summary.model_path, summary.model_step) {
+        (Some(path), Some(step)) => println!("model written to {} (the parameters of step {step})", path.display()),
+        (Some(path), None) => println!("model written to {}", path.display()),
+        (None, _) => println!("stopped at step {}: continue with --resume", summary.steps_done),
     }
     Ok(())
 }
