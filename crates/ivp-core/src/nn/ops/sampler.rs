@@ -424,6 +424,43 @@ mod tests {
     }
 
     #[test]
+    fn rejects_each_input_of_another_dtype_by_name() {
+        let img = tensor((0..12).map(|v| v as f32).collect(), &[1, 1, 3, 4]);
+        let vec = tensor(vec![0.0; 24], &[1, 2, 3, 4]);
+        let f64 = |t: &Tensor| t.to_dtype(DType::F64).unwrap();
+        for (image, vectors) in [(f64(&img), vec.clone()), (img.clone(), f64(&vec))] {
+            let err = sample_bilinear(&image, &vectors).unwrap_err().to_string();
+            assert!(err.contains("sample_bilinear: f32 tensors on the CPU expected, got F64"), "{err}");
+        }
+    }
+
+    #[test]
+    fn a_frame_without_columns_gives_an_empty_output_and_empty_gradients() {
+        let img = Var::from_tensor(&tensor(vec![], &[1, 1, 3, 0])).unwrap();
+        let vec = Var::from_tensor(&tensor(vec![], &[1, 2, 3, 0])).unwrap();
+        let out = sample_bilinear(&img, &vec).unwrap();
+        assert_eq!(out.dims(), [1, 1, 3, 0]);
+        let g = out.sum_all().unwrap().backward().unwrap();
+        assert_eq!(g.get(&img).unwrap().dims(), [1, 1, 3, 0]);
+        assert_eq!(g.get(&vec).unwrap().dims(), [1, 2, 3, 0]);
+    }
+
+    #[test]
+    fn the_gradient_ops_refuse_inputs_of_other_shapes() {
+        let (img, vec) = random_case(1, 2, 3, 4, 5);
+        let grad = tensor(vec![1.0; 24], &[1, 2, 3, 4]);
+        let small = tensor(vec![1.0; 12], &[1, 1, 3, 4]);
+        assert!(img.apply_op3(&vec, &grad, SamplerVectorGrad).is_ok());
+        let err = img.apply_op3(&vec, &small, SamplerVectorGrad).unwrap_err().to_string();
+        assert!(err.contains("sample_bilinear vector gradient"), "{err}");
+        let err = img.apply_op3(&small, &grad, SamplerVectorGrad).unwrap_err().to_string();
+        assert!(err.contains("sample_bilinear vector gradient"), "{err}");
+        assert!(vec.apply_op2(&grad, SamplerImageGrad).is_ok());
+        let err = small.apply_op2(&grad, SamplerImageGrad).unwrap_err().to_string();
+        assert!(err.contains("sample_bilinear image gradient"), "{err}");
+    }
+
+    #[test]
     fn strided_inputs_are_accepted() {
         let (img, vec) = random_case(1, 2, 5, 7, 4);
         let (img_t, vec_t) = (img.transpose(2, 3).unwrap(), vec.transpose(2, 3).unwrap()); // (.., 7, 5)
