@@ -470,7 +470,7 @@ pub fn train_on(
         // Ctrl-C reaches the ranks one by one (or only one): they stop together, after the same step.
         let interrupted = any_rank(group, options.stop.as_ref().is_some_and(|s| s.load(Ordering::SeqCst)));
         if (interrupted || options.stop_at == Some(step)) && step < config.steps {
-            if step % config.checkpoint_every != 0 {
+            if !is_checkpoint_step(config, step) {
                 checkpoint(step, &optimizer, selection.step())?;
             }
             bar.println(format!("stopped at step {step}; continue with --resume"));
