@@ -880,4 +880,42 @@ mod tests {
         assert!((b / a - 1.0).abs() < 0.5, "fine {a}, shrunk {b}");
         assert!(shrunk.pixels().iter().flatten().all(|x| x.is_finite()));
     }
+
+    #[test]
+    fn the_scaled_prior_equals_the_prior_of_the_whole_shrunk_last_frame_across_a_wide_hole() {
+        // A wide near block at camera x = 0 uncovers a band of striped wall about 22 px wide by
+        // x = 0.25: 11 blocks at factor 2, whose middle is beyond the reach of either side.
+        let k = test_scene::intrinsics();
+        let (w, h) = (test_scene::WIDTH, test_scene::HEIGHT);
+        let on_block = |u: usize, v: usize, camera_x: f64| {
+            let x = (u as f64 - k.cx) / k.fx + camera_x;
+            (8..40).contains(&v) && (-0.2..0.2).contains(&x)
+        };
+        let frame = |camera_x: f64| {
+            let image =
+                Image::from_fn(w, h, |u, v| if on_block(u, v, camera_x) { test_scene::RED } else { row_stripes(v) });
+            let depth = Image::from_fn(w, h, |u, v| [if on_block(u, v, camera_x) { 1.0 } else { 10.0 }]);
+            (image, depth, WorldToCamera(DMat4::from_translation(glam::DVec3::new(-camera_x, 0.0, 0.0))))
+        };
+        let [(f0, d0, p0), (f1, d1, p1), (_, _, p2)] = [0.0, 0.25, 0.3].map(frame);
+        let (before_last, last) =
+            (FrameView { image: &f0, depth: &d0, pose: &p0 }, FrameView { image: &f1, depth: &d1, pose: &p1 });
+        let holes = warp_forward(&f1, &d1, &k, &relative_pose(&p1, &p2)).holes;
+        let s = 2;
+        // The same recipe with the whole last frame shrunk.
+        let (depth_n, k_n) = (shrink_depth(&d1, s), shrink_intrinsics(&k, s));
+        let known_n = warp_known(&shrink_depth(&d0, s), &k_n, &relative_pose(&p0, &p1));
+        let near_known = within_reach(&known_n, depth_n.width(), depth_n.height(), GROUND_TRUTH_REACH);
+        assert!(near_known.iter().any(|&near| !near), "no hole block is beyond reach of the known ones");
+        let image_n = shrink_image_at(&f1, s, None);
+        let coarse_known: Vec<bool> =
+            blocks_with(w, h, s, &holes.known(), false).into_iter().map(|hole| !hole).collect();
+        let view_n = FrameView { image: &image_n, depth: &depth_n, pose: &p1 };
+        let whole =
+            ScaledPrior::scaled(prior_from_last(&known_n, &view_n, &p2, &k_n, &coarse_known), s, w, h).to_full();
+        let scaled = scaled_target_prior(&before_last, &last, &p2, &k, &holes, s).to_full();
+        assert!(whole.pixels().iter().filter(|&&v| v != [0.0, 0.0]).count() > 20);
+        let differ = scaled.pixels().iter().zip(whole.pixels()).filter(|(a, b)| a != b).count();
+        assert_eq!(differ, 0, "{differ} pixels differ from the prior of the whole shrunk frame");
+    }
 }

@@ -66,9 +66,17 @@ const METRICS_FIELDS: usize = 20;
 /// Rows of runs written before the real clips' and the gradient norm's columns existed.
 const METRICS_FIELDS_WITHOUT_REAL: usize = 15;
 
+/// Decimals of a D-MSE in `metrics.csv`.
+const D_MSE_DECIMALS: usize = 3;
+
 /// Two fields, D-MSE and D-SSIM, empty where there is no score.
 fn score_fields(s: Option<ValidationScores>) -> String {
-    s.map_or(",".to_string(), |s| format!("{:.3},{:.5}", s.d_mse, s.d_ssim))
+    s.map_or(",".to_string(), |s| format!("{:.*},{:.5}", D_MSE_DECIMALS, s.d_mse, s.d_ssim))
+}
+
+/// A D-MSE as `metrics.csv` holds it, for choices that a resumed run makes again from the file.
+pub fn d_mse_as_logged(d_mse: f64) -> f64 {
+    format!("{d_mse:.D_MSE_DECIMALS$}").parse().expect("a formatted number parses")
 }
 
 /// `metrics.csv`, rewritten atomically after every row so that it is always complete.

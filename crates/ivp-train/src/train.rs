@@ -37,7 +37,7 @@ use crate::distributed::{
     any_rank, batch_part, share_training_state, sum_gradients, sum_over_ranks, ProcessGroup, SingleProcess,
 };
 use crate::guide::{Guide, GuideChoice, GuideSource, GuideTarget};
-use crate::metrics_csv::{LossWindow, MetricsLog, MetricsRow};
+use crate::metrics_csv::{d_mse_as_logged, LossWindow, MetricsLog, MetricsRow};
 use crate::plot::write_loss_curve;
 use crate::progress::progress_bar;
 use crate::validation::{ValidationConfig, ValidationReport, ValidationSet, REPOSITORY_CLIPS};
@@ -538,11 +538,13 @@ impl Selection {
         self.best.map(|(step, _)| step)
     }
 
-    /// Takes the validation of the checkpointed step `step` if it is the best so far.
+    /// Takes the validation of the checkpointed step `step` if it is the best so far. Scores are
+    /// compared as `metrics.csv` logs them, so that a resumed run, which recalls them from the
+    /// file, chooses as an uninterrupted one does; a tie keeps the earlier step.
     fn offer(&mut self, step: u64, report: &ValidationReport) {
         let (Some(start), Some(real)) = (self.start, report.real) else { return };
-        let best_d_mse = self.best.and_then(|(_, b)| b.real).map_or(f64::INFINITY, |b| b.d_mse);
-        if step >= start && real.d_mse < best_d_mse {
+        let best_d_mse = self.best.and_then(|(_, b)| b.real).map_or(f64::INFINITY, |b| d_mse_as_logged(b.d_mse));
+        if step >= start && d_mse_as_logged(real.d_mse) < best_d_mse {
             self.best = Some((step, *report));
         }
     }
@@ -787,6 +789,12 @@ mod tests {
         assert_eq!(selection.step(), Some(75));
         selection.offer(100, &ValidationReport::default());
         assert_eq!(selection.step(), Some(75), "a validation without real clips does not compete");
+
+        // Compared as metrics.csv logs them (3 decimals), as a resumed run recalls them.
+        let mut selection = Selection::new(&config);
+        selection.offer(75, &real(1.9994));
+        selection.offer(100, &real(1.9986));
+        assert_eq!(selection.step(), Some(75), "equal as logged (1.999): the earlier step stays");
 
         for off in [TrainConfig { validation_data: None, ..config.clone() }, TrainConfig { select_from: 1.0, ..config }]
         {
