@@ -62,7 +62,12 @@ fn a_resumed_run_equals_an_uninterrupted_one() {
     // Starting again without --resume must not overwrite the run.
     let err = train(&config, &parts, &quiet()).unwrap_err();
     assert!(format!("{err:#}").contains("--resume"), "{err:#}");
-    let second = train(&config, &parts, &RunOptions { resume: true, ..quiet() }).unwrap();
+    // What a run records may change on resume, and leaves its parameters as they would be.
+    let recorded = TrainConfig { validate_every: 2, checkpoint_every: 2, keep_checkpoints: 4, ..config.clone() };
+    let other_lr = TrainConfig { lr: config.lr / 2.0, ..recorded.clone() };
+    let err = train(&other_lr, &parts, &RunOptions { resume: true, ..quiet() }).unwrap_err();
+    assert!(format!("{err:#}").contains("another configuration"), "{err:#}");
+    let second = train(&recorded, &parts, &RunOptions { resume: true, ..quiet() }).unwrap();
     assert_eq!(second.steps_done, 6);
 
     assert_eq!(parameters(&whole.join("model.safetensors")), parameters(&parts.join("model.safetensors")));

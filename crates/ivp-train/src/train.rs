@@ -276,6 +276,20 @@ impl TrainConfig {
         Ok(())
     }
 
+    /// Whether a run started with `saved` may go on with this configuration: it may change its
+    /// length and what it records (how often it validates and checkpoints, how many checkpoints
+    /// it keeps), which leave its parameters as they would be, not what it computes.
+    pub fn may_continue(&self, saved: &TrainConfig) -> bool {
+        let recorded = TrainConfig {
+            steps: self.steps,
+            validate_every: self.validate_every,
+            checkpoint_every: self.checkpoint_every,
+            keep_checkpoints: self.keep_checkpoints,
+            ..saved.clone()
+        };
+        recorded == *self
+    }
+
     /// The first step whose checkpoint may become the model by its validation on real clips
     /// (`select_from`), or `None` when the model is the last step's.
     pub fn selection_start(&self) -> Option<u64> {
@@ -626,8 +640,9 @@ fn open_run_folder(
             let saved: TrainConfig = serde_json::from_str(&ckpt.train_config)
                 .with_context(|| format!("{}: unreadable training configuration", path.display()))?;
             ensure!(
-                TrainConfig { steps: config.steps, ..saved.clone() } == *config,
-                "{}: the run was started with another configuration (only --steps may change on resume):\n{saved:#?}",
+                config.may_continue(&saved),
+                "{}: the run was started with another configuration (on resume only steps, validate_every, \
+                 checkpoint_every and keep_checkpoints may change):\n{saved:#?}",
                 path.display()
             );
             restore_parameters(&path, varmap, &ckpt.params)?;

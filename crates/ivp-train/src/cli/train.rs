@@ -145,7 +145,7 @@ fn train_config(args: &TrainArgs) -> Result<TrainConfig> {
     let mut config = match &args.config {
         Some(path) => TrainConfig::from_toml_file(path)?,
         None if args.resume => {
-            // A resumed run keeps its configuration unless flags change it (only --steps may).
+            // A resumed run keeps its configuration unless flags change it (TrainConfig::may_continue).
             let path = args.out.join("config.toml");
             TrainConfig::from_toml_file(&path).with_context(|| format!("resuming {}", args.out.display()))?
         }
