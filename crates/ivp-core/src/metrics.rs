@@ -521,6 +521,24 @@ mod tests {
         assert_eq!(masked_ssim(&a, &b, &[false; 4]), None);
         assert_eq!(masked_mean(&[1.0, 2.0, 4.0], &[true, false, true]), Some(2.5));
         assert_eq!(masked_mean(&[], &[]), None);
+        // Several pixels, neither image zero: 1, 2 and 3 levels apart in one channel each.
+        let p = RgbImage::from_fn(3, 1, |u, _| {
+            [[10.0, 20.0, 30.0], [40.0, 50.0, 60.0], [70.0, 80.0, 90.0]][u].map(|x| x / 255.0)
+        });
+        let g = RgbImage::from_fn(3, 1, |u, _| {
+            [[11.0, 20.0, 30.0], [40.0, 48.0, 60.0], [70.0, 80.0, 93.0]][u].map(|x| x / 255.0)
+        });
+        let by_hand = (1.0 + 4.0 + 9.0) / 9.0;
+        assert!(close(masked_mse(&p, &g, &[true; 3]).unwrap(), by_hand, 1e-4), "{:?}", masked_mse(&p, &g, &[true; 3]));
+        assert!(close(mse(&p, &g), by_hand, 1e-4), "{}", mse(&p, &g));
+    }
+
+    #[test]
+    fn images_without_pixels_have_an_empty_ssim_map() {
+        for (w, h) in [(0, 0), (0, 5), (5, 0)] {
+            let a = RgbImage::filled(w, h, [0.5; 3]);
+            assert!(ssim_map(&a, &a).is_empty(), "{w}x{h}");
+        }
     }
 
     #[test]
