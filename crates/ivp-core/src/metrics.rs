@@ -534,6 +534,18 @@ mod tests {
     }
 
     #[test]
+    fn masked_ssim_is_the_mean_of_the_map_over_the_mask() {
+        let mut rng = Rng(11);
+        let (a, b) = (rng.image(9, 7), rng.image(9, 7));
+        let map = ssim_map(&a, &b);
+        let mask: Vec<bool> = (0..map.len()).map(|i| i % 3 == 0).collect();
+        let by_hand = masked_mean(&map, &mask).unwrap();
+        assert!(by_hand < 0.5, "random images are far apart: {by_hand}");
+        assert_eq!(masked_ssim(&a, &b, &mask), Some(by_hand));
+        assert_eq!(masked_ssim(&a, &a, &mask).map(|s| (s * 1e9).round() / 1e9), Some(1.0));
+    }
+
+    #[test]
     fn images_without_pixels_have_an_empty_ssim_map() {
         for (w, h) in [(0, 0), (0, 5), (5, 0)] {
             let a = RgbImage::filled(w, h, [0.5; 3]);
