@@ -280,14 +280,14 @@ impl TrainConfig {
     /// length and what it records (how often it validates and checkpoints, how many checkpoints
     /// it keeps), which leave its parameters as they would be, not what it computes.
     pub fn may_continue(&self, saved: &TrainConfig) -> bool {
-        let recorded = TrainConfig {
+        let saved_but_recording = TrainConfig {
             steps: self.steps,
             validate_every: self.validate_every,
             checkpoint_every: self.checkpoint_every,
             keep_checkpoints: self.keep_checkpoints,
             ..saved.clone()
         };
-        recorded == *self
+        saved_but_recording == *self
     }
 
     /// The first step whose checkpoint may become the model by its validation on real clips
