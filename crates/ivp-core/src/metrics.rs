@@ -807,6 +807,24 @@ mod tests {
     }
 
     #[test]
+    fn tc_drops_tracks_that_land_one_pixel_past_the_last_column_or_row() {
+        // The disocclusion covers x and y 19..=21. In the last frame (ground truth, so no mask to
+        // stay in) the scene moves by 19 px right or down: the tracks through x (or y) = 21 land
+        // on 40, one past the last pixel, and must go; the other two thirds land inside.
+        let past = (W - 21) as f64 / 10.0;
+        let mut right = Synthetic::new([0.0; FRAMES], 0.5, 0.25);
+        right.poses[6] = WorldToCamera(DMat4::from_translation(DVec3::new(past, 0.0, 0.0)));
+        assert_eq!(tc_track_variances(&right.seq()).len(), 16 * 6);
+        let mut down = Synthetic::new([0.0; FRAMES], 0.5, 0.25);
+        down.poses[6] = WorldToCamera(DMat4::from_translation(DVec3::new(0.0, (H - 21) as f64 / 10.0, 0.0)));
+        assert_eq!(tc_track_variances(&down.seq()).len(), 16 * 6);
+        // One pixel less and every track stays in the frame.
+        let mut inside = Synthetic::new([0.0; FRAMES], 0.5, 0.25);
+        inside.poses[6] = WorldToCamera(DMat4::from_translation(DVec3::new(past - 0.1, 0.0, 0.0)));
+        assert_eq!(tc_track_variances(&inside.seq()).len(), 16 * 9);
+    }
+
+    #[test]
     fn tc_skips_points_behind_a_camera() {
         let mut s = Synthetic::new([0.0; FRAMES], 0.5, 0.25);
         // Frame 11 looks the other way (180 degrees about y): every point is behind it.
@@ -831,5 +849,33 @@ mod tests {
         let v = tc_track_variances(&s.seq());
         assert_eq!(v.len(), 144);
         assert!(v.iter().all(|&x| x == 0.0));
+    }
+
+    #[test]
+    fn population_variance_does_not_cancel_around_a_large_mean() {
+        // Written as sum(v^2) - n mean^2 (or any form that multiplies by v + mean), the rounding of
+        // the mean, about 1e-7 here, is multiplied by 2e9: 79.7 instead of 2/9.
+        let v = population_variance(&[1e9, 1e9 + 1.0, 1e9 + 1.0]);
+        assert!((v - 2.0 / 9.0).abs() < 1e-6, "{v}");
+    }
+
+    #[test]
+    fn metrics_refuse_images_of_different_sizes() {
+        let (a, b) = (RgbImage::filled(4, 3, [0.5; 3]), RgbImage::filled(3, 4, [0.5; 3]));
+        for metric in [
+            |a: &RgbImage, b: &RgbImage| {
+                let _ = mse(a, b);
+            },
+            |a: &RgbImage, b: &RgbImage| {
+                let _ = masked_mse(a, b, &[true; 12]);
+            },
+            |a: &RgbImage, b: &RgbImage| {
+                let _ = ssim_map(a, b);
+            },
+        ] {
+            let refused = std::panic::catch_unwind(|| metric(&a, &b)).expect_err("4x3 against 3x4 was scored");
+            let message = refused.downcast_ref::<String>().expect("a formatted message");
+            assert!(message.contains("image sizes differ: 4x3 vs 3x4"), "{message}");
+        }
     }
 }

@@ -746,6 +746,17 @@ mod tests {
     }
 
     #[test]
+    fn a_pixel_of_zero_depth_goes_nowhere() {
+        // Depth 0 (missing) would put every point at the camera's centre, which the motion moves
+        // 2.5 units in front of the target camera, onto the principal point: nothing may land.
+        let (w, h) = (40, 30);
+        let depth = Image::filled(w, h, [0.0]);
+        let t = translation(0.0, 0.0, 2.5);
+        assert_eq!(warp_forward(&textured(w, h), &depth, &k(), &t).holes.count(PixelClass::Known), 0);
+        assert!(!warp_known(&depth, &k(), &t).contains(&true));
+    }
+
+    #[test]
     fn invalid_depths_never_produce_nan_or_panic() {
         let (w, h) = (17, 13);
         let img = textured(w, h);
@@ -899,18 +910,20 @@ mod tests {
 
     #[test]
     fn warp_known_is_the_known_mask_of_the_warp() {
-        let (w, h) = (61, 37);
-        let img = textured(w, h);
-        let specials = [f32::NAN, 0.0, -1.0, f32::INFINITY, 1e-30, 1e30];
-        let depths = [
-            boxes_depth(w, h),
-            Image::from_fn(w, h, |u, v| [specials[(u + v * w) % specials.len()]]),
-            Image::filled(w, h, [f32::NAN]),
-        ];
-        for depth in &depths {
-            for t in poses() {
-                let known = warp_forward(&img, depth, &k(), &t).holes.known();
-                assert_eq!(warp_known(depth, &k(), &t), known, "{t:?}");
+        // Odd sizes; wider than two chunks; taller than wide; a single pixel; no pixels.
+        for (w, h) in [(61, 37), (CHUNK * 2 + 13, 9), (5, 7), (1, 1), (0, 3), (3, 0)] {
+            let img = textured(w, h);
+            let specials = [f32::NAN, 0.0, -1.0, f32::INFINITY, 1e-30, 1e30];
+            let depths = [
+                boxes_depth(w, h),
+                Image::from_fn(w, h, |u, v| [specials[(u + v * w) % specials.len()]]),
+                Image::filled(w, h, [f32::NAN]),
+            ];
+            for depth in &depths {
+                for t in poses() {
+                    let known = warp_forward(&img, depth, &k(), &t).holes.known();
+                    assert_eq!(warp_known(depth, &k(), &t), known, "{w}x{h}, {t:?}");
+                }
             }
         }
     }
