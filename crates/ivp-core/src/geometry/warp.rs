@@ -757,6 +757,23 @@ mod tests {
     }
 
     #[test]
+    fn a_point_must_be_more_than_min_z_in_front_and_finitely_far() {
+        let (w, h) = (40, 30);
+        let d = 2f64.powi(-20);
+        let depth = Image::filled(w, h, [d as f32]);
+        // Moved to exactly MIN_Z in front of the camera (MIN_Z - d is exact, as is the sum): dropped.
+        let at_min_z = translation(0.0, 0.0, MIN_Z - d);
+        assert_eq!(d + (MIN_Z - d), MIN_Z);
+        assert!(!warp_known(&depth, &k(), &at_min_z).contains(&true));
+        // A hair further lands, the same frame otherwise.
+        let beyond = translation(0.0, 0.0, 2.0 * MIN_Z - d);
+        assert!(warp_known(&depth, &k(), &beyond).contains(&true));
+        // An infinitely far translation moves nothing anywhere.
+        let infinite = translation(0.0, 0.0, f64::INFINITY);
+        assert!(!warp_known(&Image::filled(w, h, [1.0]), &k(), &infinite).contains(&true));
+    }
+
+    #[test]
     fn invalid_depths_never_produce_nan_or_panic() {
         let (w, h) = (17, 13);
         let img = textured(w, h);
