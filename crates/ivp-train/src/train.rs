@@ -63,6 +63,9 @@ pub struct TrainConfig {
     /// motion then opens holes this many times wider in pixels, as larger frames do
     /// (`SyntheticSource::with_scales`). Ignored with `data`.
     pub frame_scales: Vec<usize>,
+    /// Probability that a near object of a generated scene is a floor-to-ceiling column or pole
+    /// (`SceneParams::near_column_probability`). Ignored with `data`.
+    pub near_column_probability: f64,
     /// Steps during which a guide term pulls the vectors towards a target, fading linearly to
     /// nothing (0: the paper's losses alone from the start). See [`GuideSource`].
     pub guide_steps: u64,
@@ -127,6 +130,7 @@ impl Default for TrainConfig {
             batch: 16,
             crop: 64,
             frame_scales: vec![1],
+            near_column_probability: 0.0,
             guide_steps: 500,
             guide: GuideChoice::Auto,
             lr: 1e-3,
@@ -245,6 +249,11 @@ impl TrainConfig {
             "frame_scales must be whole numbers from 1 to 8, got {:?}",
             self.frame_scales
         );
+        ensure!(
+            (0.0..=1.0).contains(&self.near_column_probability),
+            "near_column_probability must be in [0, 1], got {}",
+            self.near_column_probability
+        );
         ensure!(self.lr > 0.0 && self.lr.is_finite(), "lr must be a positive number, got {}", self.lr);
         ensure!(
             self.max_grad_norm >= 0.0 && self.max_grad_norm.is_finite(),
@@ -347,7 +356,8 @@ impl TrainConfig {
             None => {
                 let width = (2 * self.crop).max(320);
                 let height = (3 * self.crop / 2).max(240);
-                let params = SceneParams { width, height, ..SceneParams::default() };
+                let near_column_probability = self.near_column_probability;
+                let params = SceneParams { width, height, near_column_probability, ..SceneParams::default() };
                 Arc::new(SyntheticSource::new(params).with_scales(&self.frame_scales))
             }
         })

@@ -650,7 +650,7 @@ fn normalise<const C: usize>(
 mod tests {
     use super::*;
     use crate::geometry::holes::PixelClass;
-    use glam::{DMat3, DVec3};
+    use glam::{DMat3, DVec3, DVec4};
 
     fn k() -> Intrinsics {
         Intrinsics::new(100.0, 100.0, 31.5, 23.5)
@@ -771,6 +771,42 @@ mod tests {
         // An infinitely far translation moves nothing anywhere.
         let infinite = translation(0.0, 0.0, f64::INFINITY);
         assert!(!warp_known(&Image::filled(w, h, [1.0]), &k(), &infinite).contains(&true));
+    }
+
+    #[test]
+    fn a_point_thrown_to_infinity_does_not_set_the_largest_depth() {
+        // Column 10 (cx = 10, so its points have x = 0 whatever the matrix's first column) holds a
+        // near surface over a far one; moved down by 0.05, the near one lands 5 rows lower, onto
+        // the far one's splats, where the depth weight, and so the largest depth, sets the blend.
+        // One more point, at (30, 0) with depth 2000, lands nowhere: the matrix throws its x, its y
+        // or its z to infinity. It must not count towards the largest depth, which
+        // would then be 1000 instead of 10: the blend in column 10 would change.
+        let (w, h) = (40, 30);
+        let k = Intrinsics::new(100.0, 100.0, 10.0, 14.5);
+        let img = Image::from_fn(w, h, |_, v| if v < 15 { [1.0, 0.0, 0.0] } else { [0.0, 0.0, 1.0] });
+        let depth_with = |far_point: f32| {
+            Image::from_fn(w, h, |u, v| match (u, v) {
+                (10, v) => [if v < 15 { 1.0 } else { 10.0 }],
+                (30, 0) => [far_point],
+                _ => [0.0],
+            })
+        };
+        let down = DVec3::new(0.0, 0.05, 0.0);
+        let cases = [
+            ("x", DVec4::new(1e306, 0.0, 0.0, 0.0)),
+            ("y", DVec4::new(1.0, 1e306, 0.0, 0.0)),
+            ("z", DVec4::new(1.0, 0.0, 1e306, 0.0)),
+        ];
+        for (case, first_column) in cases {
+            let t = DMat4::from_cols(first_column, DVec4::Y, DVec4::Z, down.extend(1.0));
+            let thrown = warp_forward(&img, &depth_with(2000.0), &k, &t);
+            let absent = warp_forward(&img, &depth_with(0.0), &k, &t);
+            // The blend is there to be changed: both surfaces reach rows 16-19 of column 10.
+            let blended = absent.image.get(10, 17);
+            assert!(blended[0] > 0.99 && blended[2] > 0.0, "{case}: {blended:?}");
+            assert_eq!(thrown.image, absent.image, "{case} thrown to infinity changed the blend");
+            assert_eq!(thrown.depth, absent.depth, "{case}");
+        }
     }
 
     #[test]

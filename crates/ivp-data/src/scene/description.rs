@@ -28,6 +28,10 @@ pub struct SceneParams {
     pub near_objects: usize,
     /// Distance in metres from the camera's start to the nearest point of a near object.
     pub near_distance: RangeInclusive<f64>,
+    /// Probability that a near object is a floor-to-ceiling column or pole instead of a
+    /// free-standing object shrunk into the view. Such an object spans the image, so the slivers
+    /// it uncovers run from border to border, as beside the columns of the Blender clips.
+    pub near_column_probability: f64,
     /// Distance in metres from the camera's start to the far wall or backdrop, along its view.
     pub background_distance: RangeInclusive<f64>,
     /// Probability of open ground with a distant backdrop instead of a room.
@@ -45,6 +49,7 @@ impl Default for SceneParams {
             objects: 6..=12,
             near_objects: 3,
             near_distance: 0.8..=1.5,
+            near_column_probability: 0.0,
             background_distance: 4.0..=10.0,
             open_ground_probability: 0.2,
         }

@@ -190,7 +190,7 @@ fn place_objects(
             let first = near_end + (i - near_count) as f64 * slot_width;
             Slot { distance: first..=first + slot_width, azimuth: -wide..=wide, near: false }
         };
-        let placed = (0..PLACEMENT_ATTEMPTS).find_map(|_| try_place(rng, room, path, view, &slot));
+        let placed = (0..PLACEMENT_ATTEMPTS).find_map(|_| try_place(rng, params, room, path, view, &slot));
         objects.extend(placed);
     }
     objects
@@ -219,6 +219,15 @@ impl Kind {
             _ => Kind::Pole,
         }
     }
+
+    /// A column or a pole, in the proportions of [`Kind::random`].
+    fn random_floor_to_ceiling(rng: &mut impl Rng) -> Self {
+        if rng.random_range(0..6) < 3 {
+            Kind::Column
+        } else {
+            Kind::Pole
+        }
+    }
 }
 
 /// Where an object may go.
@@ -232,12 +241,22 @@ struct Slot {
 }
 
 /// One attempt to place an object of a random kind in `slot`; `None` if the place is not free.
-fn try_place(rng: &mut impl Rng, room: &Room, path: &[DVec3], view: &StartView, slot: &Slot) -> Option<SceneObject> {
+fn try_place(
+    rng: &mut impl Rng,
+    params: &SceneParams,
+    room: &Room,
+    path: &[DVec3],
+    view: &StartView,
+    slot: &Slot,
+) -> Option<SceneObject> {
     let near = slot.near;
-    // A near object spans the image unless it is small and floats inside the view: the background
-    // it uncovers would then reach the image border, which makes it a new region, not a
-    // disocclusion (ALGORITHMS.md §4.1). So near objects are free-standing and shrunk to fit the view.
-    let kind = Kind::random(rng, near);
+    // A near object spans the image unless it is small and floats inside the view: much of the
+    // background it uncovers then reaches the image border, which makes it a new region, not a
+    // disocclusion (ALGORITHMS.md §4.1). So near objects are mostly free-standing and shrunk to
+    // fit the view; a near column (`near_column_probability`) spans it on purpose. The draw is
+    // skipped at probability 0 so that the default scenes stay those of earlier versions.
+    let near_column = near && params.near_column_probability > 0.0 && rng.random_bool(params.near_column_probability);
+    let kind = if near_column { Kind::random_floor_to_ceiling(rng) } else { Kind::random(rng, near) };
     let (floor, ceiling) = (room.min.z as f64, room.max.z as f64);
     // Horizontal half-extents (for boxes) or radius, and height (None: floor to ceiling).
     let (half_x, half_y, height, round) = match kind {
@@ -267,7 +286,7 @@ fn try_place(rng: &mut impl Rng, room: &Room, path: &[DVec3], view: &StartView, 
     // The band seen at a near object's near side (the narrowest), clipped to the room.
     let (near_lo, near_hi) = view.visible_band(surface_distance);
     let (near_lo, near_hi) = (near_lo.max(floor), near_hi.min(ceiling));
-    if near {
+    if near && !near_column {
         if near_hi - near_lo < MIN_NEAR_OBJECT_HEIGHT_M {
             return None;
         }

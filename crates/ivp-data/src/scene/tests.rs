@@ -163,6 +163,39 @@ fn random_clips_have_finite_positive_depth_and_the_camera_stays_clear() {
     }
 }
 
+/// Objects whose centre is nearer the start (horizontally) than `near_distance` reaches: only
+/// near objects can be there, since the others stand at least that far away at their nearest side.
+fn near_objects<'a>(scene: &'a Scene, params: &SceneParams) -> impl Iterator<Item = &'a SceneObject> {
+    let reach = *params.near_distance.end() as f32;
+    scene.objects.iter().filter(move |object| {
+        let (lo, hi) = object.shape.bounds();
+        ((lo + hi) / 2.0).truncate().length() < reach
+    })
+}
+
+fn floor_to_ceiling(object: &SceneObject, room: &Room) -> bool {
+    let (lo, hi) = object.shape.bounds();
+    (lo.z - room.min.z).abs() < 1e-4 && (hi.z - room.max.z).abs() < 1e-4
+}
+
+#[test]
+fn near_column_probability_turns_near_objects_into_floor_to_ceiling_columns() {
+    let (mut near_columns, mut near_free) = (0, 0);
+    for seed in 0..30 {
+        for (probability, columns) in [(0.0, &mut near_free), (1.0, &mut near_columns)] {
+            let params = SceneParams { near_column_probability: probability, ..small(64, 48) };
+            let (scene, _) = Scene::random(&mut ChaCha8Rng::seed_from_u64(seed), &params);
+            for object in near_objects(&scene, &params) {
+                let spans = floor_to_ceiling(object, &scene.room);
+                assert_eq!(spans, probability == 1.0, "seed {seed}, probability {probability}: {object:?}");
+                *columns += 1;
+            }
+        }
+    }
+    // Both kinds of scene have near objects in the 30 seeds, or the assertions above proved nothing.
+    assert!(near_columns >= 10 && near_free >= 10, "{near_columns} near columns, {near_free} free-standing");
+}
+
 // ---------------------------------------------------------------------------------------------
 // (c) Determinism
 

@@ -70,6 +70,9 @@ pub struct GenerateArgs {
     /// larger for low frame rates).
     #[arg(long, default_value_t = 1.0)]
     motion_scale: f64,
+    /// Probability that an object near the camera is a floor-to-ceiling column or pole.
+    #[arg(long, default_value_t = 0.0)]
+    near_column_probability: f64,
 }
 
 #[derive(Args)]
@@ -180,11 +183,13 @@ pub fn run_generate(args: GenerateArgs, progress: bool) -> Result<()> {
     ensure!(args.frames >= 2, "--frames must be at least 2");
     ensure!(args.width >= 8 && args.height >= 8, "--width and --height must be at least 8");
     ensure!(args.motion_scale.is_finite() && args.motion_scale >= 0.0, "--motion-scale must be a finite number >= 0");
+    ensure!((0.0..=1.0).contains(&args.near_column_probability), "--near-column-probability must be in [0, 1]");
     let params = SceneParams {
         width: args.width,
         height: args.height,
         frames: args.frames,
         motion_scale: args.motion_scale,
+        near_column_probability: args.near_column_probability,
         ..Default::default()
     };
     let bar = progress_bar(progress, args.clips as u64, "rendering");
