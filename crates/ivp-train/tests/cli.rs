@@ -280,6 +280,17 @@ fn generate_is_byte_identical_for_a_seed_and_its_clips_check_out() {
     assert!(ta != tc, "different seeds, same bytes");
     let stdout = ok(&["check", "--clip", s(&a.join("clip_0001"))]);
     assert!(stdout.contains("OK"), "{stdout}");
+    // Near columns change the scenes of a seed; a probability outside [0, 1] is refused by name.
+    let d = tmp.path().join("d");
+    let mut argv = args(&d, "3");
+    argv.extend(["--near-column-probability", "1"].map(String::from));
+    ok(&argv.iter().map(String::as_str).collect::<Vec<_>>());
+    assert!(tree(&d) != ta, "near columns changed nothing");
+    argv[2] = s(&tmp.path().join("e")).to_string();
+    *argv.last_mut().unwrap() = "1.5".to_string();
+    let refused = ivp(&argv.iter().map(String::as_str).collect::<Vec<_>>());
+    let stderr = String::from_utf8_lossy(&refused.stderr);
+    assert!(!refused.status.success() && stderr.contains("--near-column-probability"), "{stderr}");
 }
 
 #[test]
