@@ -452,7 +452,7 @@ impl DepthWeight {
     }
 }
 
-/// `ln(x)` for finite `x >= 1`, relative error below 1e-7.
+/// `ln(x)` for finite `x >= 1`, within 3 ulps of the exact value for `x <= 1 + MAX_WEIGHT_DEPTH`.
 #[inline]
 fn ln_at_least_one(x: f32) -> f32 {
     const SQRT_2: f32 = std::f32::consts::SQRT_2;
@@ -866,6 +866,22 @@ mod tests {
         let w = DepthWeight::new(1000.0);
         assert!((w.at(0.0) - 1.0).abs() < 1e-6);
         assert!((w.at(1e9) / (-50f32).exp() - 1.0).abs() < 1e-5);
+    }
+
+    #[test]
+    fn fast_ln_is_within_three_ulps_for_every_depth_that_occurs() {
+        // Every f32 in [1, 1 + MAX_WEIGHT_DEPTH], against the f64 logarithm: measured at most
+        // 2.84 ulps (the series with the sign of its last term flipped: 4.1).
+        let (first, last) = (1f32.to_bits(), (1.0 + MAX_WEIGHT_DEPTH as f32).to_bits());
+        let worst = (first..=last)
+            .map(|bits| {
+                let x = f32::from_bits(bits);
+                let want = (x as f64).ln();
+                let ulp = (want as f32).next_up() - want as f32;
+                (ln_at_least_one(x) as f64 - want).abs() / ulp as f64
+            })
+            .fold(0.0, f64::max);
+        assert!(worst <= 3.0, "ln_at_least_one is {worst} ulps off");
     }
 
     #[test]
