@@ -708,6 +708,34 @@ mod tests {
     }
 
     #[test]
+    fn a_half_pixel_shift_blends_each_pair_of_neighbours_equally() {
+        // A plane at z = 5 moved by 0.025: fx * 0.025 / 5 = 0.5 px to the left.
+        let (w, h) = (32, 8);
+        let img = textured(w, h);
+        let out = warp_forward(&img, &Image::filled(w, h, [5.0]), &k(), &translation(-0.025, 0.0, 0.0));
+        for (u, v) in [(3, 2), (10, 5), (20, 7)] {
+            let (a, b) = (img.get(u, v), img.get(u + 1, v));
+            let want: [f32; 3] = std::array::from_fn(|c| (a[c] + b[c]) / 2.0);
+            assert_close(&Image::from_fn(1, 1, |_, _| out.image.get(u, v)), &Image::filled(1, 1, want), 1e-6);
+        }
+    }
+
+    #[test]
+    fn a_landing_within_snap_px_of_a_pixel_is_that_pixel() {
+        // Moved by 4e-7 px (less than SNAP_PX), every point lands on its own pixel with the bits of
+        // the identity warp; unsnapped, its bilinear weight 1 - 4e-7 would change the last bits.
+        let (w, h) = (64, 48);
+        let img = textured(w, h);
+        let depth = Image::from_fn(w, h, |u, v| [1.0 + ((u * 3 + v * 5) % 11) as f32]);
+        let identity = warp_forward(&img, &depth, &k(), &DMat4::IDENTITY);
+        // A shift of d px at depth z needs a translation of d z / fx: the same d for every depth
+        // only with a rotation, so turn the camera by d / fx radians about its y axis instead.
+        let turn = DMat4::from_mat3(DMat3::from_rotation_y(4e-7 / 100.0));
+        let turned = warp_forward(&img, &depth, &k(), &turn);
+        assert!(turned.image == identity.image && turned.depth == identity.depth);
+    }
+
+    #[test]
     fn box_in_front_of_wall_opens_a_disocclusion_on_the_trailing_side() {
         // Wall at z = 10, box at z = 2 over columns 20..30. Camera moves right by 0.2: the box moves
         // left by fx*0.2/2 = 10 px, the wall by 2 px, uncovering 8 px of wall right of the box.
