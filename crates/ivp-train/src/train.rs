@@ -15,7 +15,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use anyhow::{bail, ensure, Context, Result};
+use anyhow::{anyhow, bail, ensure, Context, Result};
 use candle_core::backprop::GradStore;
 use candle_core::{Tensor, Var};
 use candle_nn::VarMap;
@@ -26,7 +26,7 @@ use ivp_data::samples::{
     Batch, ClipSource, DatasetSource, SampleConfig, SampleGenerator, SampleStream, Split, StreamOptions,
     SyntheticSource,
 };
-use ivp_data::SceneParams;
+use ivp_data::{check_near_column_probability, SceneParams};
 use serde::{Deserialize, Serialize};
 
 use crate::checkpoint::{
@@ -249,11 +249,8 @@ impl TrainConfig {
             "frame_scales must be whole numbers from 1 to 8, got {:?}",
             self.frame_scales
         );
-        ensure!(
-            (0.0..=1.0).contains(&self.near_column_probability),
-            "near_column_probability must be in [0, 1], got {}",
-            self.near_column_probability
-        );
+        check_near_column_probability(self.near_column_probability)
+            .map_err(|problem| anyhow!("near_column_probability {problem}"))?;
         ensure!(self.lr > 0.0 && self.lr.is_finite(), "lr must be a positive number, got {}", self.lr);
         ensure!(
             self.max_grad_norm >= 0.0 && self.max_grad_norm.is_finite(),
@@ -356,8 +353,12 @@ impl TrainConfig {
             None => {
                 let width = (2 * self.crop).max(320);
                 let height = (3 * self.crop / 2).max(240);
-                let near_column_probability = self.near_column_probability;
-                let params = SceneParams { width, height, near_column_probability, ..SceneParams::default() };
+                let params = SceneParams {
+                    width,
+                    height,
+                    near_column_probability: self.near_column_probability,
+                    ..SceneParams::default()
+                };
                 Arc::new(SyntheticSource::new(params).with_scales(&self.frame_scales))
             }
         })
@@ -1047,6 +1048,17 @@ mod tests {
         assert_eq!(GuideSource::of(Variant::NoTemporalPrior), Some(GuideSource::DepthFill));
         assert_eq!(GuideSource::of(Variant::Full), Some(GuideSource::DepthFill));
         assert_eq!(GuideSource::of(Variant::NoDepth), Some(GuideSource::TemporalPrior));
+    }
+
+    #[test]
+    fn near_column_probability_must_be_a_probability() {
+        for (p, valid) in [(0.0, true), (0.5, true), (1.0, true), (1.5, false), (-0.1, false), (f64::NAN, false)] {
+            let config = TrainConfig { near_column_probability: p, ..TrainConfig::default() };
+            match config.validate() {
+                Ok(()) => assert!(valid, "{p} accepted"),
+                Err(e) => assert!(!valid && e.to_string().starts_with("near_column_probability must be"), "{p}: {e}"),
+            }
+        }
     }
 
     #[test]

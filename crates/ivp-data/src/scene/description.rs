@@ -56,6 +56,16 @@ impl Default for SceneParams {
     }
 }
 
+/// Whether `p` can be [`SceneParams::near_column_probability`]; the error says why not (without
+/// the field's name, which callers know under their own).
+pub fn check_near_column_probability(p: f64) -> Result<(), String> {
+    if (0.0..=1.0).contains(&p) {
+        Ok(())
+    } else {
+        Err(format!("must be a probability in [0, 1], got {p}"))
+    }
+}
+
 /// The one light of a scene.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Light {

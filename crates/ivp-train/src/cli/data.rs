@@ -3,10 +3,10 @@
 use std::path::PathBuf;
 use std::sync::Arc;
 
-use anyhow::{bail, ensure, Result};
+use anyhow::{anyhow, bail, ensure, Result};
 use clap::Args;
 use ivp_data::samples::{ClipSource, DatasetSource, Sample, SampleConfig, SampleGenerator, Split, SyntheticSource};
-use ivp_data::{generate_dataset, write_rgb_png, Clip, SceneParams};
+use ivp_data::{check_near_column_probability, generate_dataset, write_rgb_png, Clip, SceneParams};
 
 use crate::check::{check_clip, CheckReport};
 use crate::eval::DEFAULT_TARGETS;
@@ -183,7 +183,8 @@ pub fn run_generate(args: GenerateArgs, progress: bool) -> Result<()> {
     ensure!(args.frames >= 2, "--frames must be at least 2");
     ensure!(args.width >= 8 && args.height >= 8, "--width and --height must be at least 8");
     ensure!(args.motion_scale.is_finite() && args.motion_scale >= 0.0, "--motion-scale must be a finite number >= 0");
-    ensure!((0.0..=1.0).contains(&args.near_column_probability), "--near-column-probability must be in [0, 1]");
+    check_near_column_probability(args.near_column_probability)
+        .map_err(|problem| anyhow!("--near-column-probability {problem}"))?;
     let params = SceneParams {
         width: args.width,
         height: args.height,
