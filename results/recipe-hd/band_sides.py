@@ -27,5 +27,7 @@ for y in np.unique(np.nonzero(hole)[0]):
         left += len(run) * left_new
         either += len(run) * (left_new or right_new)
 n = hole.sum()
+if n == 0:
+    sys.exit(f'{sys.argv[1]}: no disocclusion pixels')
 print(f'{sys.argv[1]}: {n} disocclusion pixels; their run borders a new region on the right '
       f'{right / n:.2f}, on the left {left / n:.2f}, on either side {either / n:.2f}')
