@@ -63,6 +63,10 @@ pub struct TrainConfig {
     /// motion then opens holes this many times wider in pixels, as larger frames do
     /// (`SyntheticSource::with_scales`). Ignored with `data`.
     pub frame_scales: Vec<usize>,
+    /// Generated clips move the camera this many times the head motion of a 30 fps display per
+    /// frame, one factor drawn per clip: larger motion opens wider holes at the same frame size
+    /// (`SyntheticSource::with_motion_scales`). Ignored with `data`.
+    pub motion_scales: Vec<f64>,
     /// Probability that a near object of a generated scene is a floor-to-ceiling column or pole
     /// (`SceneParams::near_column_probability`). Ignored with `data`.
     pub near_column_probability: f64,
@@ -130,6 +134,7 @@ impl Default for TrainConfig {
             batch: 16,
             crop: 64,
             frame_scales: vec![1],
+            motion_scales: vec![1.0],
             near_column_probability: 0.0,
             guide_steps: 500,
             guide: GuideChoice::Auto,
@@ -249,6 +254,11 @@ impl TrainConfig {
             "frame_scales must be whole numbers from 1 to 8, got {:?}",
             self.frame_scales
         );
+        ensure!(
+            !self.motion_scales.is_empty() && self.motion_scales.iter().all(|&s| s > 0.0 && s <= 16.0),
+            "motion_scales must be numbers above 0 and at most 16, got {:?}",
+            self.motion_scales
+        );
         check_near_column_probability(self.near_column_probability)
             .map_err(|problem| anyhow!("near_column_probability {problem}"))?;
         ensure!(self.lr > 0.0 && self.lr.is_finite(), "lr must be a positive number, got {}", self.lr);
@@ -359,7 +369,11 @@ impl TrainConfig {
                     near_column_probability: self.near_column_probability,
                     ..SceneParams::default()
                 };
-                Arc::new(SyntheticSource::new(params).with_scales(&self.frame_scales))
+                Arc::new(
+                    SyntheticSource::new(params)
+                        .with_scales(&self.frame_scales)
+                        .with_motion_scales(&self.motion_scales),
+                )
             }
         })
     }
@@ -1048,6 +1062,26 @@ mod tests {
         assert_eq!(GuideSource::of(Variant::NoTemporalPrior), Some(GuideSource::DepthFill));
         assert_eq!(GuideSource::of(Variant::Full), Some(GuideSource::DepthFill));
         assert_eq!(GuideSource::of(Variant::NoDepth), Some(GuideSource::TemporalPrior));
+    }
+
+    #[test]
+    fn motion_scales_must_be_positive_and_bounded() {
+        let cases: [(&[f64], bool); 7] = [
+            (&[1.0], true),
+            (&[1.0, 2.0, 4.0], true),
+            (&[], false),
+            (&[0.0], false),
+            (&[1.0, -2.0], false),
+            (&[f64::NAN], false),
+            (&[f64::INFINITY], false),
+        ];
+        for (scales, valid) in cases {
+            let config = TrainConfig { motion_scales: scales.to_vec(), ..TrainConfig::default() };
+            match config.validate() {
+                Ok(()) => assert!(valid, "{scales:?} accepted"),
+                Err(e) => assert!(!valid && e.to_string().starts_with("motion_scales must be"), "{scales:?}: {e}"),
+            }
+        }
     }
 
     #[test]

@@ -416,3 +416,41 @@ fn clips_at_several_scales_are_drawn_per_clip_from_the_seed() {
     // Without scales, the frames are the parameters' size.
     assert_eq!(SyntheticSource::new(source.params().clone()).params_for(seed).width, 32);
 }
+
+#[test]
+fn motion_scales_are_drawn_per_clip_independently_of_frame_scales() {
+    let params =
+        crate::scene::SceneParams { width: 32, height: 24, frames: 3, motion_scale: 0.5, ..Default::default() };
+    let source = SyntheticSource::new(params.clone()).with_scales(&[1, 3]).with_motion_scales(&[1.0, 4.0]);
+    // Clip seeds are hashes (of the sampler's seed, split and id), uniform in all their bits.
+    let seeds: Vec<u64> = (0..64u64).map(|i| i.wrapping_mul(0x9E37_79B9_7F4A_7C15)).collect();
+    let drawn: Vec<(usize, f64)> = seeds
+        .iter()
+        .map(|&seed| {
+            let p = source.params_for(seed);
+            (p.width, p.motion_scale)
+        })
+        .collect();
+    // The clip's motion multiplies the parameters' own; every pairing of the two draws occurs.
+    for pair in [(32, 0.5), (32, 2.0), (96, 0.5), (96, 2.0)] {
+        assert!(drawn.contains(&pair), "{pair:?} never drawn: {drawn:?}");
+    }
+    assert!(drawn.iter().all(|(_, m)| [0.5, 2.0].contains(m)), "{drawn:?}");
+    // A seed's clip moves the camera by its motion scale: the same scene, a path four times as
+    // long, so a clip drawn at 2.0 differs from the same seed at 0.5.
+    let seed = *seeds
+        .iter()
+        .find(|&&s| source.params_for(s) == crate::scene::SceneParams { motion_scale: 2.0, ..params.clone() })
+        .unwrap();
+    let fast = source.load(0, seed).unwrap();
+    let slow = SyntheticSource::new(params.clone()).load(0, seed).unwrap();
+    let position = |pose: &WorldToCamera| pose.camera_to_world().w_axis.truncate();
+    let travelled = |clip: &ClipFrames| {
+        let first = position(&clip.poses[0]);
+        clip.poses.iter().map(|pose| position(pose).distance(first)).fold(0.0, f64::max)
+    };
+    assert!(travelled(&fast) > 2.0 * travelled(&slow), "{} vs {}", travelled(&fast), travelled(&slow));
+    // Without motion scales, every clip keeps the parameters' motion (the scenes of earlier versions).
+    let plain = SyntheticSource::new(params.clone());
+    assert!((0..16u64).all(|s| plain.params_for(s) == params));
+}
