@@ -40,6 +40,6 @@ pub use io::{
     write_rgb_png, DEPTH_CHANNELS, WRITTEN_DEPTH_CHANNEL,
 };
 pub use samples::{Batch, Sample, SampleConfig, SampleGenerator, SampleStream, StreamOptions};
-pub use scene::{check_near_column_probability, generate_dataset, render_clip, Scene, SceneParams, SyntheticClip};
+pub use scene::{check_probability, generate_dataset, render_clip, Scene, SceneParams, SyntheticClip};
 pub use scenenet::{ray_mm_to_planar, read_scenenet_depth, SCENENET_FRAME_STEP};
 pub use write::write_clip;

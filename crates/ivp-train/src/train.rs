@@ -26,7 +26,7 @@ use ivp_data::samples::{
     Batch, ClipSource, DatasetSource, SampleConfig, SampleGenerator, SampleStream, Split, StreamOptions,
     SyntheticSource,
 };
-use ivp_data::{check_near_column_probability, SceneParams};
+use ivp_data::{check_probability, SceneParams};
 use serde::{Deserialize, Serialize};
 
 use crate::checkpoint::{
@@ -70,6 +70,9 @@ pub struct TrainConfig {
     /// Probability that a near object of a generated scene is a floor-to-ceiling column or pole
     /// (`SceneParams::near_column_probability`). Ignored with `data`.
     pub near_column_probability: f64,
+    /// Probability that a texture of a generated scene is 2 to 4 times finer than the default
+    /// patterns (`SceneParams::fine_texture_probability`). Ignored with `data`.
+    pub fine_texture_probability: f64,
     /// Steps during which a guide term pulls the vectors towards a target, fading linearly to
     /// nothing (0: the paper's losses alone from the start). See [`GuideSource`].
     pub guide_steps: u64,
@@ -136,6 +139,7 @@ impl Default for TrainConfig {
             frame_scales: vec![1],
             motion_scales: vec![1.0],
             near_column_probability: 0.0,
+            fine_texture_probability: 0.0,
             guide_steps: 500,
             guide: GuideChoice::Auto,
             lr: 1e-3,
@@ -259,8 +263,10 @@ impl TrainConfig {
             "motion_scales must be numbers above 0 and at most 16, got {:?}",
             self.motion_scales
         );
-        check_near_column_probability(self.near_column_probability)
+        check_probability(self.near_column_probability)
             .map_err(|problem| anyhow!("near_column_probability {problem}"))?;
+        check_probability(self.fine_texture_probability)
+            .map_err(|problem| anyhow!("fine_texture_probability {problem}"))?;
         ensure!(self.lr > 0.0 && self.lr.is_finite(), "lr must be a positive number, got {}", self.lr);
         ensure!(
             self.max_grad_norm >= 0.0 && self.max_grad_norm.is_finite(),
@@ -367,6 +373,7 @@ impl TrainConfig {
                     width,
                     height,
                     near_column_probability: self.near_column_probability,
+                    fine_texture_probability: self.fine_texture_probability,
                     ..SceneParams::default()
                 };
                 Arc::new(
@@ -1085,12 +1092,15 @@ mod tests {
     }
 
     #[test]
-    fn near_column_probability_must_be_a_probability() {
+    fn scene_probabilities_must_be_probabilities() {
         for (p, valid) in [(0.0, true), (0.5, true), (1.0, true), (1.5, false), (-0.1, false), (f64::NAN, false)] {
-            let config = TrainConfig { near_column_probability: p, ..TrainConfig::default() };
-            match config.validate() {
-                Ok(()) => assert!(valid, "{p} accepted"),
-                Err(e) => assert!(!valid && e.to_string().starts_with("near_column_probability must be"), "{p}: {e}"),
+            let near = TrainConfig { near_column_probability: p, ..TrainConfig::default() };
+            let fine = TrainConfig { fine_texture_probability: p, ..TrainConfig::default() };
+            for (config, field) in [(near, "near_column_probability"), (fine, "fine_texture_probability")] {
+                match config.validate() {
+                    Ok(()) => assert!(valid, "{field} {p} accepted"),
+                    Err(e) => assert!(!valid && e.to_string().starts_with(&format!("{field} must be")), "{p}: {e}"),
+                }
             }
         }
     }

@@ -291,6 +291,17 @@ fn generate_is_byte_identical_for_a_seed_and_its_clips_check_out() {
     let refused = ivp(&argv.iter().map(String::as_str).collect::<Vec<_>>());
     let stderr = String::from_utf8_lossy(&refused.stderr);
     assert!(!refused.status.success() && stderr.contains("--near-column-probability"), "{stderr}");
+    // So do fine textures.
+    let f = tmp.path().join("f");
+    let mut argv = args(&f, "3");
+    argv.extend(["--fine-texture-probability", "1"].map(String::from));
+    ok(&argv.iter().map(String::as_str).collect::<Vec<_>>());
+    assert!(tree(&f) != ta, "fine textures changed nothing");
+    argv[2] = s(&tmp.path().join("g")).to_string();
+    *argv.last_mut().unwrap() = "2".to_string();
+    let refused = ivp(&argv.iter().map(String::as_str).collect::<Vec<_>>());
+    let stderr = String::from_utf8_lossy(&refused.stderr);
+    assert!(!refused.status.success() && stderr.contains("--fine-texture-probability"), "{stderr}");
 }
 
 #[test]

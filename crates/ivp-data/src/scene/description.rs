@@ -32,6 +32,11 @@ pub struct SceneParams {
     /// free-standing object shrunk into the view. Such an object spans the image, so the slivers
     /// it uncovers run from border to border, as beside the columns of the Blender clips.
     pub near_column_probability: f64,
+    /// Probability that a texture's pattern is drawn 2 to 4 times finer than the patterns'
+    /// own sizes. The Blender clips' surfaces carry finer detail than the default patterns (twice
+    /// the mean horizontal gradient at 320x240), and a sliver between fine patterns is where a
+    /// vector a pixel too long costs most.
+    pub fine_texture_probability: f64,
     /// Distance in metres from the camera's start to the far wall or backdrop, along its view.
     pub background_distance: RangeInclusive<f64>,
     /// Probability of open ground with a distant backdrop instead of a room.
@@ -50,15 +55,16 @@ impl Default for SceneParams {
             near_objects: 3,
             near_distance: 0.8..=1.5,
             near_column_probability: 0.0,
+            fine_texture_probability: 0.0,
             background_distance: 4.0..=10.0,
             open_ground_probability: 0.2,
         }
     }
 }
 
-/// Whether `p` can be [`SceneParams::near_column_probability`]; the error says why not (without
+/// Whether `p` can be one of the probabilities of [`SceneParams`]; the error says why not (without
 /// the field's name, which callers know under their own).
-pub fn check_near_column_probability(p: f64) -> Result<(), String> {
+pub fn check_probability(p: f64) -> Result<(), String> {
     if (0.0..=1.0).contains(&p) {
         Ok(())
     } else {

@@ -9,7 +9,7 @@
 use std::f64::consts::PI;
 use std::ops::RangeInclusive;
 
-use glam::{DVec2, DVec3, Vec3};
+use glam::{Affine2, DVec2, DVec3, Vec2, Vec3};
 use ivp_core::Intrinsics;
 use rand::Rng;
 
@@ -41,6 +41,8 @@ const NEAR_OBJECT_BAND_SHARE: RangeInclusive<f64> = 0.5..=1.0;
 const NEAR_VIEW_SHARE: f64 = 0.8;
 /// A near object is not placed where the room leaves less of the band than this.
 const MIN_NEAR_OBJECT_HEIGHT_M: f64 = 0.1;
+/// How much finer than its own sizes a fine texture's pattern is (`fine_texture_probability`).
+const FINE_TEXTURE_FACTOR: RangeInclusive<f32> = 2.0..=4.0;
 
 /// Room proportions: free space beside and behind the camera path, height.
 struct RoomStyle {
@@ -74,7 +76,7 @@ impl Scene {
         let style = if open_ground { &OPEN_GROUND } else { &INDOOR };
         let background_distance = rng.random_range(params.background_distance.clone());
         let room = room_around(rng, style, &start, &path, background_distance);
-        let mut room_textures: [Texture; 6] = std::array::from_fn(|_| Texture::random(rng));
+        let mut room_textures: [Texture; 6] = std::array::from_fn(|_| random_texture(rng, params));
         if open_ground {
             room_textures[RoomFace::Ceiling as usize] = sky(rng);
         }
@@ -120,6 +122,17 @@ fn room_around(
 /// Free space beside or behind the path, at least the wall clearance.
 fn space(rng: &mut impl Rng, range: &RangeInclusive<f64>) -> f64 {
     rng.random_range(range.clone()).max(WALL_CLEARANCE_M)
+}
+
+/// A random texture, its pattern made finer with `params.fine_texture_probability`. The draw is
+/// skipped at probability 0 so that the default scenes stay those of earlier versions.
+fn random_texture(rng: &mut impl Rng, params: &SceneParams) -> Texture {
+    let mut texture = Texture::random(rng);
+    if params.fine_texture_probability > 0.0 && rng.random_bool(params.fine_texture_probability) {
+        let finer = rng.random_range(FINE_TEXTURE_FACTOR);
+        texture.placement = Affine2::from_scale(Vec2::splat(finer)) * texture.placement;
+    }
+    texture
 }
 
 /// A pale blue, cloudy texture for the ceiling of open ground.
@@ -332,7 +345,7 @@ fn try_place(
             height: height as f32,
         }),
     };
-    Some(SceneObject { shape, texture: Texture::random(rng) })
+    Some(SceneObject { shape, texture: random_texture(rng, params) })
 }
 
 /// The bottom height of an object of height `h`: on the floor when it is then in view (mostly),

@@ -31,7 +31,7 @@ use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
 
 use crate::{write_clip, DataError, Frame, Result};
-pub use description::{check_near_column_probability, CameraPath, Light, Scene, SceneObject, SceneParams};
+pub use description::{check_probability, CameraPath, Light, Scene, SceneObject, SceneParams};
 pub use geometry::{Cylinder, Room, RoomFace, Shape, Sphere, YawedBox};
 pub use texture::{Pattern, Texture};
 pub use trajectory::CameraState;

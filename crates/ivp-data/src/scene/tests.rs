@@ -196,6 +196,32 @@ fn near_column_probability_turns_near_objects_into_floor_to_ceiling_columns() {
     assert!(near_columns >= 10 && near_free >= 10, "{near_columns} near columns, {near_free} free-standing");
 }
 
+#[test]
+fn fine_texture_probability_makes_every_pattern_two_to_four_times_finer() {
+    // A texture's placement maps surface metres to pattern units: a pattern k times finer has a
+    // placement whose linear part scales areas by k squared.
+    let area_scale = |texture: &Texture| texture.placement.matrix2.determinant();
+    for seed in 0..10 {
+        for probability in [0.0, 1.0] {
+            let params = SceneParams { fine_texture_probability: probability, ..small(64, 48) };
+            let (scene, _) = Scene::random(&mut ChaCha8Rng::seed_from_u64(seed), &params);
+            // The ceiling is left out: open ground's sky is its own texture, never made finer.
+            let faces = scene.room_textures.iter().enumerate().filter(|&(face, _)| face != RoomFace::Ceiling as usize);
+            let textures: Vec<&Texture> =
+                faces.map(|(_, texture)| texture).chain(scene.objects.iter().map(|object| &object.texture)).collect();
+            assert!(textures.len() >= 6, "seed {seed}: {} textures", textures.len());
+            for texture in textures {
+                let k2 = area_scale(texture);
+                if probability == 0.0 {
+                    assert!((k2 - 1.0).abs() < 1e-4, "seed {seed}: a default texture is scaled by {k2}");
+                } else {
+                    assert!((4.0 - 1e-3..=16.0 + 1e-3).contains(&k2), "seed {seed}: a fine texture is scaled by {k2}");
+                }
+            }
+        }
+    }
+}
+
 // ---------------------------------------------------------------------------------------------
 // (c) Determinism
 

@@ -6,7 +6,7 @@ use std::sync::Arc;
 use anyhow::{anyhow, bail, ensure, Result};
 use clap::Args;
 use ivp_data::samples::{ClipSource, DatasetSource, Sample, SampleConfig, SampleGenerator, Split, SyntheticSource};
-use ivp_data::{check_near_column_probability, generate_dataset, write_rgb_png, Clip, SceneParams};
+use ivp_data::{check_probability, generate_dataset, write_rgb_png, Clip, SceneParams};
 
 use crate::check::{check_clip, CheckReport};
 use crate::eval::DEFAULT_TARGETS;
@@ -73,6 +73,9 @@ pub struct GenerateArgs {
     /// Probability that an object near the camera is a floor-to-ceiling column or pole.
     #[arg(long, default_value_t = 0.0)]
     near_column_probability: f64,
+    /// Probability that a surface's texture is drawn 2 to 4 times finer than the default patterns.
+    #[arg(long, default_value_t = 0.0)]
+    fine_texture_probability: f64,
 }
 
 #[derive(Args)]
@@ -183,14 +186,17 @@ pub fn run_generate(args: GenerateArgs, progress: bool) -> Result<()> {
     ensure!(args.frames >= 2, "--frames must be at least 2");
     ensure!(args.width >= 8 && args.height >= 8, "--width and --height must be at least 8");
     ensure!(args.motion_scale.is_finite() && args.motion_scale >= 0.0, "--motion-scale must be a finite number >= 0");
-    check_near_column_probability(args.near_column_probability)
+    check_probability(args.near_column_probability)
         .map_err(|problem| anyhow!("--near-column-probability {problem}"))?;
+    check_probability(args.fine_texture_probability)
+        .map_err(|problem| anyhow!("--fine-texture-probability {problem}"))?;
     let params = SceneParams {
         width: args.width,
         height: args.height,
         frames: args.frames,
         motion_scale: args.motion_scale,
         near_column_probability: args.near_column_probability,
+        fine_texture_probability: args.fine_texture_probability,
         ..Default::default()
     };
     let bar = progress_bar(progress, args.clips as u64, "rendering");
