@@ -280,28 +280,20 @@ fn generate_is_byte_identical_for_a_seed_and_its_clips_check_out() {
     assert!(ta != tc, "different seeds, same bytes");
     let stdout = ok(&["check", "--clip", s(&a.join("clip_0001"))]);
     assert!(stdout.contains("OK"), "{stdout}");
-    // Near columns change the scenes of a seed; a probability outside [0, 1] is refused by name.
-    let d = tmp.path().join("d");
-    let mut argv = args(&d, "3");
-    argv.extend(["--near-column-probability", "1"].map(String::from));
-    ok(&argv.iter().map(String::as_str).collect::<Vec<_>>());
-    assert!(tree(&d) != ta, "near columns changed nothing");
-    argv[2] = s(&tmp.path().join("e")).to_string();
-    *argv.last_mut().unwrap() = "1.5".to_string();
-    let refused = ivp(&argv.iter().map(String::as_str).collect::<Vec<_>>());
-    let stderr = String::from_utf8_lossy(&refused.stderr);
-    assert!(!refused.status.success() && stderr.contains("--near-column-probability"), "{stderr}");
-    // So do fine textures.
-    let f = tmp.path().join("f");
-    let mut argv = args(&f, "3");
-    argv.extend(["--fine-texture-probability", "1"].map(String::from));
-    ok(&argv.iter().map(String::as_str).collect::<Vec<_>>());
-    assert!(tree(&f) != ta, "fine textures changed nothing");
-    argv[2] = s(&tmp.path().join("g")).to_string();
-    *argv.last_mut().unwrap() = "2".to_string();
-    let refused = ivp(&argv.iter().map(String::as_str).collect::<Vec<_>>());
-    let stderr = String::from_utf8_lossy(&refused.stderr);
-    assert!(!refused.status.success() && stderr.contains("--fine-texture-probability"), "{stderr}");
+    // Near columns and fine textures each change the scenes of a seed; a probability outside
+    // [0, 1] is refused by the flag's name.
+    for (flag, bad) in [("--near-column-probability", "1.5"), ("--fine-texture-probability", "2")] {
+        let changed = tmp.path().join(&flag[2..]);
+        let mut argv = args(&changed, "3");
+        argv.extend([flag, "1"].map(String::from));
+        ok(&argv.iter().map(String::as_str).collect::<Vec<_>>());
+        assert!(tree(&changed) != ta, "{flag} 1 changed nothing");
+        argv[2] = s(&tmp.path().join(format!("{}-refused", &flag[2..]))).to_string();
+        *argv.last_mut().unwrap() = bad.to_string();
+        let refused = ivp(&argv.iter().map(String::as_str).collect::<Vec<_>>());
+        let stderr = String::from_utf8_lossy(&refused.stderr);
+        assert!(!refused.status.success() && stderr.contains(flag), "{flag} {bad}: {stderr}");
+    }
 }
 
 #[test]
