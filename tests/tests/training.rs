@@ -237,6 +237,7 @@ fn a_run_validated_on_real_clips_keeps_the_checkpoint_they_score_best() {
     let (whole, parts) = (dir.path().join("whole"), dir.path().join("parts"));
     let config = TrainConfig {
         validation_data: Some(ivp_tests::blender_dev().join("clip_002")),
+        validation_targets: vec![6, 8, 10],
         validate_every: 2,
         checkpoint_every: 2,
         keep_checkpoints: 1,

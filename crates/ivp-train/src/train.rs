@@ -102,11 +102,16 @@ pub struct TrainConfig {
     /// Validation clips of 6 frames at 1920x1080 (3 targets each).
     pub validation_hd_clips: usize,
     /// A folder of real clips (12 frames or more) scored at every validation beside the generated
-    /// ones, at targets 6, 8 and 10: of what a run prints, the figure that ranks runs as other real
-    /// renders do, and what chooses the model (`select_from`). By default the repository's
+    /// ones, at `validation_targets`: of what a run prints, the figure that ranks runs as other
+    /// real renders do, and what chooses the model (`select_from`). By default the repository's
     /// `data/blender-dev`, relative to the working folder (skipped with a warning when missing).
     /// Keep it out of what you will judge the model on.
     pub validation_data: Option<PathBuf>,
+    /// The targets scored in each clip of `validation_data`: by default every target of a 12-frame
+    /// clip, 3 to 11. The 4 clips of `data/blender-dev` at these 36 frames rank 25 trained models
+    /// as the 8 clips of `blender-dev-extra` do at Spearman 0.69, at targets 6, 8 and 10 alone
+    /// (`ivp eval`'s) at 0.48 (results/recipe-hd/README.md).
+    pub validation_targets: Vec<usize>,
     /// Iterations of the test-time infilling in validation (ALGORITHMS.md §6.5).
     pub iterations: usize,
     /// Steps between two checkpoints.
@@ -153,6 +158,7 @@ impl Default for TrainConfig {
             validation_clips: 8,
             validation_hd_clips: 2,
             validation_data: Some(PathBuf::from(REPOSITORY_CLIPS)),
+            validation_targets: (3..=11).collect(),
             iterations: ivp_core::infill::DEFAULT_ITERATIONS,
             checkpoint_every: 250,
             keep_checkpoints: 3,
@@ -211,10 +217,14 @@ pub struct TrainOverrides {
     #[serde(skip_serializing_if = "Option::is_none")]
     pub validate_every: Option<u64>,
     /// A folder of real clips to validate on besides the generated frames (12 frames or more
-    /// each; targets 6, 8, 10), e.g. data/blender-dev.
+    /// each), e.g. data/blender-dev.
     #[arg(long)]
     #[serde(skip_serializing_if = "Option::is_none")]
     pub validation_data: Option<PathBuf>,
+    /// The targets scored in each clip of --validation-data, comma-separated (default 3 to 11).
+    #[arg(long, value_delimiter = ',')]
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub validation_targets: Option<Vec<usize>>,
 }
 
 impl TrainOverrides {
@@ -295,6 +305,11 @@ impl TrainConfig {
             self.select_from
         );
         ensure!(self.iterations > 0, "iterations must be at least 1");
+        ensure!(
+            !self.validation_targets.is_empty() && self.validation_targets.iter().all(|&t| t >= 3),
+            "validation_targets must be frame indices of 3 or more (a target needs the 3 frames before it), got {:?}",
+            self.validation_targets
+        );
         Ok(())
     }
 
@@ -355,6 +370,7 @@ impl TrainConfig {
             clips: self.validation_clips,
             hd_clips: self.validation_hd_clips,
             data: self.validation_data.clone(),
+            targets: self.validation_targets.clone(),
         }
     }
 
@@ -884,6 +900,7 @@ mod tests {
             checkpoint_every: Some(11),
             validate_every: Some(13),
             validation_data: Some(PathBuf::from("real")),
+            validation_targets: Some(vec![6, 8, 10]),
         };
         let want = TrainConfig {
             variant: Variant::NoDepth,
@@ -897,6 +914,7 @@ mod tests {
             checkpoint_every: 11,
             validate_every: 13,
             validation_data: Some(PathBuf::from("real")),
+            validation_targets: vec![6, 8, 10],
             ..recipe.clone()
         };
         assert_eq!(overrides.apply(&recipe).unwrap(), want);
@@ -1087,6 +1105,26 @@ mod tests {
             match config.validate() {
                 Ok(()) => assert!(valid, "{scales:?} accepted"),
                 Err(e) => assert!(!valid && e.to_string().starts_with("motion_scales must be"), "{scales:?}: {e}"),
+            }
+        }
+    }
+
+    #[test]
+    fn validation_targets_must_have_three_frames_before_them() {
+        let cases: [(&[usize], bool); 5] = [
+            (&[3, 4, 5, 6, 7, 8, 9, 10, 11], true),
+            (&[6, 8, 10], true),
+            (&[], false),
+            (&[2, 6], false),
+            (&[0], false),
+        ];
+        for (targets, valid) in cases {
+            let config = TrainConfig { validation_targets: targets.to_vec(), ..TrainConfig::default() };
+            match config.validate() {
+                Ok(()) => assert!(valid, "{targets:?} accepted"),
+                Err(e) => {
+                    assert!(!valid && e.to_string().starts_with("validation_targets must be"), "{targets:?}: {e}")
+                }
             }
         }
     }

@@ -31,7 +31,7 @@ use ivp_data::{find_clips, Clip, SceneParams};
 use rayon::prelude::*;
 
 use crate::distributed::{even_part, ProcessGroup};
-use crate::eval::{check_targets, DEFAULT_TARGETS};
+use crate::eval::check_targets;
 
 /// D-MSE (0..255 scale) and D-SSIM averaged over the frames with disocclusions.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -84,8 +84,10 @@ pub struct ValidationConfig {
     pub clips: usize,
     /// Clips of 6 frames at 1920x1080, scored at targets 3, 4 and 5.
     pub hd_clips: usize,
-    /// A folder of real clips (any depth), scored at targets 6, 8 and 10 as `ivp eval` scores them.
+    /// A folder of real clips (any depth), scored at `targets` as `ivp eval` scores them.
     pub data: Option<PathBuf>,
+    /// The targets of each clip of `data`.
+    pub targets: Vec<usize>,
 }
 
 /// The two sizes of the set.
@@ -136,9 +138,8 @@ impl ValidationSet {
             let paths = find_clips(dir).with_context(|| format!("validation data {}", dir.display()))?;
             for path in paths {
                 let clip = Clip::open(&path)?;
-                check_targets(&clip, &DEFAULT_TARGETS).context("validation data")?;
-                let targets =
-                    DEFAULT_TARGETS.iter().map(|&target| Item { size: Size::Real, clip: clips.len(), target });
+                check_targets(&clip, &config.targets).context("validation data")?;
+                let targets = config.targets.iter().map(|&target| Item { size: Size::Real, clip: clips.len(), target });
                 items.extend(targets);
                 clips.push(ClipFrames::load(&clip)?);
             }
@@ -240,7 +241,7 @@ mod tests {
     use ivp_core::nn::model::{ModelConfig, Variant};
 
     fn config(seed: u64) -> ValidationConfig {
-        ValidationConfig { seed, clips: 2, hd_clips: 0, data: None }
+        ValidationConfig { seed, clips: 2, hd_clips: 0, data: None, targets: Vec::new() }
     }
 
     #[test]
@@ -273,14 +274,16 @@ mod tests {
     #[test]
     fn real_clips_are_scored_as_ivp_eval_scores_them() {
         let clip = blender_dev().join("clip_002");
-        let config = ValidationConfig { seed: 7, clips: 0, hd_clips: 0, data: Some(clip.clone()) };
+        let targets: Vec<usize> = (3..=11).collect();
+        let config =
+            ValidationConfig { seed: 7, clips: 0, hd_clips: 0, data: Some(clip.clone()), targets: targets.clone() };
         let set = ValidationSet::new(&config).unwrap();
-        assert_eq!(set.len(), 3, "targets 6, 8, 10 of one clip");
+        assert_eq!(set.len(), 9, "targets 3 to 11 of one clip");
         let fill = set.score_fill(&SingleProcess).unwrap();
         assert_eq!((fill.small, fill.large), (None, None));
         // `ivp eval --data clip_002 --methods fill` pools the same frames the same way.
         let methods = [crate::eval::Method::Internal(classical_infiller("fill").unwrap())];
-        let eval = crate::eval::evaluate(&clip, &DEFAULT_TARGETS, &methods, false).unwrap();
+        let eval = crate::eval::evaluate(&clip, &targets, &methods, false).unwrap();
         let want = eval.methods[0].d_mse.unwrap();
         let got = fill.real.expect("clip_002 has disocclusions").d_mse;
         assert!((got - want).abs() <= 1e-9 * want, "validation {got} against eval {want}");
