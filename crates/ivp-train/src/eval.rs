@@ -23,6 +23,9 @@ use crate::progress::progress_bar;
 /// The targets of a 12-frame clip (ALGORITHMS.md §5).
 pub const DEFAULT_TARGETS: [usize; 3] = [6, 8, 10];
 
+/// The first frame that can be a target: target `t` is predicted from frames `t - 3 ..= t - 1`.
+pub const FIRST_TARGET: usize = 3;
+
 /// A method scored by the harness.
 pub enum Method {
     /// Runs inside ivp.
@@ -264,7 +267,7 @@ pub fn target_context<'a>(
 /// Checks that `targets` can be predicted in a clip of `len` frames: each needs `t - 3 .. t`.
 pub fn check_targets(clip: &Clip, targets: &[usize]) -> Result<()> {
     for &t in targets {
-        if t < 3 || t >= clip.len() {
+        if t < FIRST_TARGET || t >= clip.len() {
             bail!(
                 "{}: target {t} needs frames {}..={t}, but the clip has frames 0..={}",
                 clip.path().display(),

@@ -36,6 +36,7 @@ use crate::checkpoint::{
 use crate::distributed::{
     any_rank, batch_part, share_training_state, sum_gradients, sum_over_ranks, ProcessGroup, SingleProcess,
 };
+use crate::eval::FIRST_TARGET;
 use crate::guide::{Guide, GuideChoice, GuideSource, GuideTarget};
 use crate::metrics_csv::{d_mse_as_logged, LossWindow, MetricsLog, MetricsRow};
 use crate::plot::write_loss_curve;
@@ -306,7 +307,7 @@ impl TrainConfig {
         );
         ensure!(self.iterations > 0, "iterations must be at least 1");
         ensure!(
-            !self.validation_targets.is_empty() && self.validation_targets.iter().all(|&t| t >= 3),
+            !self.validation_targets.is_empty() && self.validation_targets.iter().all(|&t| t >= FIRST_TARGET),
             "validation_targets must be frame indices of 3 or more (a target needs the 3 frames before it), got {:?}",
             self.validation_targets
         );
