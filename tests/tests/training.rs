@@ -11,7 +11,7 @@ use ivp_train::eval::{evaluate, Method};
 use ivp_train::train::{latest_checkpoint, train, RunOptions, TrainConfig};
 
 /// A run small enough for a test: width 1/8, 2 crops of 32x32 per step, one generated validation
-/// clip and no real one.
+/// clip and no real one; its model is one checkpoint unless a test averages.
 fn tiny(steps: u64) -> TrainConfig {
     TrainConfig {
         width_mult: 0.125,
@@ -25,6 +25,7 @@ fn tiny(steps: u64) -> TrainConfig {
         validation_hd_clips: 0,
         checkpoint_every: 3,
         keep_checkpoints: 10,
+        average_checkpoints: 1,
         validation_data: None,
         ..TrainConfig::default()
     }
@@ -221,6 +222,7 @@ fn a_run_can_write_the_mean_of_its_last_checkpoints_as_its_model() {
     )
     .unwrap();
     assert_eq!(parameters(&run.join("model.safetensors")), parameters(&mean));
+    assert_eq!(summary.model_steps, [3, 6]);
     // The averaged model is validated, and that is the score the run reports and logs last.
     let reported = summary.last_validation.expect("a validation of the averaged model").small.unwrap();
     let log = std::fs::read_to_string(run.join("metrics.csv")).unwrap();
@@ -265,7 +267,7 @@ fn a_run_validated_on_real_clips_keeps_the_checkpoint_they_score_best() {
     assert_ne!(best, 8, "the test needs a run whose best validation is not its last step: {scored:?}");
 
     let model = whole.join("model.safetensors");
-    assert_eq!(summary.model_step, Some(best));
+    assert_eq!(summary.model_steps, [best]);
     assert_eq!(model_step(&model), best);
     let kept = whole.join(format!("checkpoints/step_{best:08}.safetensors"));
     let params: Vec<_> = parameters(&kept).into_iter().filter(|(n, _)| !n.starts_with("adam.")).collect();
@@ -277,13 +279,73 @@ fn a_run_validated_on_real_clips_keeps_the_checkpoint_they_score_best() {
     // Stopped and resumed, the run remembers its best checkpoint from metrics.csv.
     train(&config, &parts, &RunOptions { stop_at: Some(5), ..quiet() }).unwrap();
     let resumed = train(&config, &parts, &RunOptions { resume: true, ..quiet() }).unwrap();
-    assert_eq!(resumed.model_step, Some(best));
+    assert_eq!(resumed.model_steps, [best]);
     assert_eq!(parameters(&parts.join("model.safetensors")), parameters(&model));
 
     // Without real clips the model is the last step's (select_from = 1 too: a unit test of train.rs).
     let last = TrainConfig { validation_data: None, validation_clips: 1, ..config.clone() };
-    assert_eq!(train(&last, &dir.path().join("last"), &quiet()).unwrap().model_step, Some(8));
-    // Selection and averaging exclude each other.
-    let bad = TrainConfig { average_checkpoints: 2, keep_checkpoints: 2, ..config }.validate().unwrap_err().to_string();
-    assert!(bad.contains("select_from"), "{bad}");
+    assert_eq!(train(&last, &dir.path().join("last"), &quiet()).unwrap().model_steps, [8]);
+}
+
+/// Reads metrics.csv's real-clip D-MSE (column val_real_d_mse) by step, where a row has one.
+fn real_clip_scores(run: &Path) -> Vec<(u64, f64)> {
+    let log = std::fs::read_to_string(run.join("metrics.csv")).unwrap();
+    let header: Vec<&str> = log.lines().next().unwrap().split(',').collect();
+    let column = header.iter().position(|&c| c == "val_real_d_mse").expect("a column of real-clip scores");
+    log.lines()
+        .skip(1)
+        .map(|line| line.split(',').collect::<Vec<_>>())
+        .filter(|fields| !fields[column].is_empty())
+        .map(|fields| (fields[0].parse().unwrap(), fields[column].parse().unwrap()))
+        .collect()
+}
+
+#[test]
+fn a_run_that_averages_windows_keeps_the_window_real_clips_score_best() {
+    let dir = tempfile::tempdir().unwrap();
+    let (whole, parts) = (dir.path().join("whole"), dir.path().join("parts"));
+    let clip = ivp_tests::blender_dev().join("clip_002");
+    let config = TrainConfig {
+        validation_data: Some(clip.clone()),
+        validation_targets: vec![6, 8, 10],
+        validate_every: 2,
+        checkpoint_every: 2,
+        keep_checkpoints: 2,
+        average_checkpoints: 2,
+        select_from: 0.5,
+        validation_clips: 0,
+        max_grad_norm: 0.0,
+        ..tiny(8)
+    };
+    let summary = train(&config, &whole, &quiet()).unwrap();
+    let scored = real_clip_scores(&whole);
+    assert_eq!(scored.iter().map(|s| s.0).collect::<Vec<_>>(), [2, 4, 6, 8]);
+    let best = scored.iter().filter(|s| s.0 >= 4).min_by(|a, b| a.1.total_cmp(&b.1)).unwrap().0;
+    assert_eq!(summary.model_steps, [best - 2, best]);
+
+    // The model is the mean of the best window's two checkpoints, kept for it...
+    let checkpoints = whole.join("checkpoints");
+    let window = [best - 2, best].map(|step| checkpoints.join(format!("step_{step:08}.safetensors")));
+    let mean = dir.path().join("mean.safetensors");
+    export_model(&window, &mean).unwrap();
+    let model = whole.join("model.safetensors");
+    assert_eq!(parameters(&model), parameters(&mean));
+    // ... and the score metrics.csv logged for that step is this model's, as `ivp eval` scores it
+    // (the parameters of the step alone score otherwise).
+    let (net, _) = load_model(&model).unwrap();
+    let methods = vec![Method::Internal(Box::new(ModelInfiller::new("ivp", net, config.iterations)))];
+    let scored_by_eval = evaluate(&clip, &[6, 8, 10], &methods, false).unwrap().methods[0].d_mse.unwrap();
+    let logged = scored.iter().find(|s| s.0 == best).unwrap().1;
+    assert_eq!(format!("{logged:.3}"), format!("{scored_by_eval:.3}"));
+    let (alone, _) = load_model(&window[1]).unwrap();
+    let alone = vec![Method::Internal(Box::new(ModelInfiller::new("ivp", alone, config.iterations)))];
+    let alone = evaluate(&clip, &[6, 8, 10], &alone, false).unwrap().methods[0].d_mse.unwrap();
+    assert_ne!(format!("{logged:.3}"), format!("{alone:.3}"), "the window's mean, not its last step, was scored");
+
+    // Stopped and resumed, the run validates and chooses as the uninterrupted one.
+    train(&config, &parts, &RunOptions { stop_at: Some(5), ..quiet() }).unwrap();
+    let resumed = train(&config, &parts, &RunOptions { resume: true, ..quiet() }).unwrap();
+    assert_eq!(real_clip_scores(&parts), scored);
+    assert_eq!(resumed.model_steps, [best - 2, best]);
+    assert_eq!(parameters(&parts.join("model.safetensors")), parameters(&model));
 }

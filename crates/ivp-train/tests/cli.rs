@@ -321,19 +321,24 @@ fn train_export_eval_infer_and_upsample_from_the_command_line() {
     let config = dir.path().join("tiny.toml");
     std::fs::write(
         &config,
-        "width_mult = 0.125\nsteps = 3\nbatch = 2\ncrop = 32\nvalidation_clips = 1\nvalidation_hd_clips = 0\nlog_every = 1\n",
+        "width_mult = 0.125\nsteps = 3\nbatch = 2\ncrop = 32\nvalidation_clips = 1\nvalidation_hd_clips = 0\nlog_every = 1\n\
+         checkpoint_every = 1\naverage_checkpoints = 2\nselect_from = 1.0\n",
     )
     .unwrap();
     let stdout = ok(&["train", "--synthetic", "--config", s(&config), "--steps", "2", "--out", s(&run)]);
-    assert!(stdout.contains("model written to"), "{stdout}");
+    assert!(
+        stdout.contains("model written to") && stdout.contains("(the mean of the parameters of steps 1, 2)"),
+        "{stdout}"
+    );
     let written = std::fs::read_to_string(run.join("config.toml")).unwrap();
     assert!(written.contains("steps = 2") && written.contains("crop = 32"), "flags override the file: {written}");
     let model = run.join("model.safetensors");
 
     let exported = dir.path().join("exported.safetensors");
-    let ckpt = run.join("checkpoints/step_00000002.safetensors");
-    ok(&["export", "--checkpoint", s(&ckpt), "--out", s(&exported)]);
-    // The export of the last checkpoint holds the model's tensors, each with its values.
+    let (first, ckpt) =
+        (run.join("checkpoints/step_00000001.safetensors"), run.join("checkpoints/step_00000002.safetensors"));
+    ok(&["export", "--checkpoint", s(&first), s(&ckpt), "--out", s(&exported)]);
+    // The export of the model's window holds the model's tensors, each with its values.
     let tensors = |path: &std::path::Path| -> Vec<(String, Vec<usize>, Vec<f32>)> {
         let mut all: Vec<_> = candle_core::safetensors::load(path, &candle_core::Device::Cpu)
             .unwrap()

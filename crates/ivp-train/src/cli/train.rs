@@ -131,9 +131,13 @@ fn run_train_on(group: &dyn ProcessGroup, args: TrainArgs, progress: bool) -> Re
     if let (Some(v), Some(f)) = (summary.last_validation, summary.fill) {
         println!("validation after {} steps ({minutes:.1} min): {}", summary.steps_done, v.describe(&f));
     }
-    match (&summary.model_path, summary.model_step) {
-        (Some(path), Some(step)) => println!("model written to {} (the parameters of step {step})", path.display()),
-        (Some(path), None) => println!("model written to {}", path.display()),
+    let steps: Vec<String> = summary.model_steps.iter().map(u64::to_string).collect();
+    match (&summary.model_path, steps.as_slice()) {
+        (Some(path), [step]) => println!("model written to {} (the parameters of step {step})", path.display()),
+        (Some(path), []) => println!("model written to {}", path.display()),
+        (Some(path), steps) => {
+            println!("model written to {} (the mean of the parameters of steps {})", path.display(), steps.join(", "))
+        }
         (None, _) => println!("stopped at step {}: continue with --resume", summary.steps_done),
     }
     Ok(())
