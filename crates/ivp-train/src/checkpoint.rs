@@ -19,7 +19,7 @@
 //! (each error names the tensor and the file). Weights loaded to run or export (`load_model`,
 //! `export_model`) must also stay within [`MAX_ABS_WEIGHT`].
 
-use std::collections::HashMap;
+use std::collections::{BTreeMap, HashMap};
 use std::path::{Path, PathBuf};
 
 use candle_core::{Device, Tensor};
@@ -370,8 +370,32 @@ fn write(
 ) -> Result<(), CheckpointError> {
     let bytes = safetensors::serialize(tensors, Some(metadata))
         .map_err(|e| invalid(path, format!("cannot serialise tensors: {e}")))?;
+    let bytes = with_sorted_header(bytes).map_err(|e| invalid(path, format!("cannot serialise tensors: {e}")))?;
     ivp_data::write_durably(path, &bytes)?;
     Ok(())
+}
+
+/// safetensors writes its JSON header in the order of HashMaps, which differs from one map to the
+/// next, so the same parameters would give files that differ. The header is written again with
+/// every key sorted: the same keys and values in compact JSON, hence the same length, padded with
+/// spaces as safetensors pads it.
+fn with_sorted_header(mut bytes: Vec<u8>) -> Result<Vec<u8>, String> {
+    let length = bytes.get(..8).map(|b| u64::from_le_bytes(b.try_into().expect("8 bytes"))).ok_or("no header")?;
+    let end = usize::try_from(length).ok().and_then(|n| n.checked_add(8)).filter(|&end| end <= bytes.len());
+    let end = end.ok_or("a header longer than the file")?;
+    let mut header: BTreeMap<String, serde_json::Value> =
+        serde_json::from_slice(&bytes[8..end]).map_err(|e| e.to_string())?;
+    if let Some(metadata) = header.get_mut("__metadata__") {
+        let sorted: BTreeMap<String, String> = serde_json::from_value(metadata.take()).map_err(|e| e.to_string())?;
+        *metadata = serde_json::to_value(sorted).map_err(|e| e.to_string())?;
+    }
+    let mut json = serde_json::to_vec(&header).map_err(|e| e.to_string())?;
+    if json.len() > end - 8 {
+        return Err(format!("the sorted header takes {} bytes, not {}", json.len(), end - 8));
+    }
+    json.resize(end - 8, b' ');
+    bytes[8..end].copy_from_slice(&json);
+    Ok(bytes)
 }
 
 /// Named tensors and the string metadata of a safetensors file.
@@ -454,6 +478,21 @@ mod tests {
         let err = err.to_string();
         assert!(err.contains(&path.display().to_string()), "the message does not name the file: {err}");
         err
+    }
+
+    #[test]
+    fn the_same_parameters_give_the_same_file_bytes() {
+        // Metadata comes as a HashMap, whose order changes from one map to the next: written as
+        // it comes, two saves of one model differ (tried 8 times, so that luck cannot pass).
+        let dir = tempfile::tempdir().unwrap();
+        let (_, varmap) = IvpNet::seeded(SMALL, 3).unwrap();
+        let first = dir.path().join("first.safetensors");
+        save_model(&first, &varmap, &SMALL, Some(7)).unwrap();
+        for i in 0..8 {
+            let again = dir.path().join(format!("again{i}.safetensors"));
+            save_model(&again, &varmap, &SMALL, Some(7)).unwrap();
+            assert_eq!(std::fs::read(&first).unwrap(), std::fs::read(&again).unwrap(), "save {i}");
+        }
     }
 
     #[test]
