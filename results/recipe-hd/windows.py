@@ -41,6 +41,8 @@ def main(pairs):
         singles = candidates(singles_dir, "[0-9]*")
         for k in (1, 2, 3, 4):
             found = singles if k == 1 else candidates(windows_dir, f"k{k}-*")
+            if not found:
+                continue
             step = min(found, key=lambda s: found[s][0])
             members = [singles[s][1] for s in range(step - 250 * (k - 1), step + 1, 250)]
             chosen[k].append(found[step][1])
@@ -52,6 +54,8 @@ def main(pairs):
     print("| K | blender-dev-extra, mean ± sd | worst / best |")
     print("|---|---|---|")
     for k, scores in chosen.items():
+        if len(scores) < 2:
+            continue
         print(f"| {k} | {statistics.mean(scores):.1f} ± {statistics.stdev(scores):.1f} | {max(scores) / min(scores):.3f} |")
 
 
