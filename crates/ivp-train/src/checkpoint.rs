@@ -190,32 +190,47 @@ pub fn averaged_model(checkpoints: &[PathBuf], out: &Path) -> Result<ExportedMod
     let Some((first, rest)) = checkpoints.split_first() else {
         return Err(invalid(out, "no checkpoint to export"));
     };
-    let (net, config, mut sum, mut step) = read_model(first)?;
+    let (net, config, first_parameters, mut step) = read_model(first)?;
     if rest.is_empty() {
-        let mut parameters: Vec<(String, Tensor)> = sum.into_iter().collect();
+        let mut parameters: Vec<(String, Tensor)> = first_parameters.into_iter().collect();
         parameters.sort_by(|a, b| a.0.cmp(&b.0));
         return Ok(ExportedModel { net, config, parameters, step });
     }
+    let mut sets = vec![first_parameters];
     for path in rest {
         let (_, other, tensors, other_step) = read_model(path)?;
         if other != config {
             return Err(invalid(path, format!("a {other:?} network cannot be averaged with {first:?}'s {config:?}")));
         }
-        for (name, total) in sum.iter_mut() {
-            let t = tensors.get(name).ok_or_else(|| invalid(path, format!("parameter `{name}` is missing")))?;
-            *total = total.add(t).map_err(|e| invalid(path, format!("parameter `{name}`: {e}")))?;
+        if let Some(name) = sets[0].keys().find(|name| !tensors.contains_key(*name)) {
+            return Err(invalid(path, format!("parameter `{name}` is missing")));
         }
+        sets.push(tensors);
         step = step.max(other_step);
     }
-    let count = checkpoints.len() as f64;
-    let mean: HashMap<String, Tensor> = sum
-        .into_iter()
-        .map(|(name, t)| Ok((name.clone(), (t / count).map_err(|e| invalid(out, format!("`{name}`: {e}")))?)))
-        .collect::<Result<_, CheckpointError>>()?;
+    let mean = mean_of(&sets).map_err(|e| invalid(out, e.to_string()))?;
     let net = network_from(out, &mean, config)?.detached();
     let mut parameters: Vec<(String, Tensor)> = mean.into_iter().collect();
     parameters.sort_by(|a, b| a.0.cmp(&b.0));
     Ok(ExportedModel { net, config, parameters, step })
+}
+
+/// The mean of sets of the same named parameters (every name of the first in each), added up in
+/// the order given and divided by their count: the one place a mean of weights is taken, so that
+/// a run's validation of a window and the model file written from it are the same bits.
+pub fn mean_of(sets: &[HashMap<String, Tensor>]) -> candle_core::Result<HashMap<String, Tensor>> {
+    let count = sets.len() as f64;
+    let Some((first, rest)) = sets.split_first() else { return Ok(HashMap::new()) };
+    first
+        .iter()
+        .map(|(name, t)| {
+            let mut total = t.clone();
+            for set in rest {
+                total = total.add(&set[name])?;
+            }
+            Ok((name.clone(), (total / count)?))
+        })
+        .collect()
 }
 
 /// Reads a model file (or the parameters of a checkpoint) and builds the network for inference

@@ -207,6 +207,23 @@ pub fn broadcast_from_root(group: &dyn ProcessGroup, bytes: Option<Vec<u8>>) -> 
     bytes
 }
 
+/// The values of f32 tensors, one after the other, as little-endian bytes: what ranks exchange.
+pub fn f32_bytes(tensors: &[Tensor]) -> candle_core::Result<Vec<u8>> {
+    let mut bytes = Vec::new();
+    for t in tensors {
+        bytes.extend(t.flatten_all()?.to_vec1::<f32>()?.iter().flat_map(|v| v.to_le_bytes()));
+    }
+    Ok(bytes)
+}
+
+/// The next tensor of [`f32_bytes`]'s output, shaped like `like`; `bytes` moves past it.
+pub fn tensor_from_f32_bytes(bytes: &mut &[u8], like: &Tensor) -> candle_core::Result<Tensor> {
+    let (head, rest) = bytes.split_at(4 * like.elem_count());
+    *bytes = rest;
+    let floats: Vec<f32> = head.chunks_exact(4).map(|b| f32::from_le_bytes(b.try_into().expect("4 bytes"))).collect();
+    Tensor::from_vec(floats, like.shape(), like.device())
+}
+
 /// Gives every rank rank 0's parameters, Adam state and `step` (the step the run starts at), and
 /// returns that step: rank 0 alone reads the run folder (a fresh run or a checkpoint), the others
 /// start from exactly its state.
@@ -225,10 +242,7 @@ pub fn share_training_state(
         .iter()
         .flat_map(|(name, var)| [var.as_tensor().clone(), moment("m", name), moment("v", name)])
         .collect();
-    let mut bytes = Vec::new();
-    for t in &tensors {
-        bytes.extend(t.flatten_all()?.to_vec1::<f32>()?.iter().flat_map(|v| v.to_le_bytes()));
-    }
+    let mut bytes = f32_bytes(&tensors)?;
     bytes.extend(adam_steps.to_le_bytes());
     bytes.extend(step.to_le_bytes());
     group.broadcast(&mut bytes);
@@ -237,18 +251,11 @@ pub fn share_training_state(
     }
 
     let (mut values, counters) = bytes.split_at(bytes.len() - 16);
-    let mut next_tensor = |like: &Tensor| -> Result<Tensor, DistributedError> {
-        let (head, rest) = values.split_at(4 * like.elem_count());
-        values = rest;
-        let floats: Vec<f32> =
-            head.chunks_exact(4).map(|b| f32::from_le_bytes(b.try_into().expect("4 bytes"))).collect();
-        Ok(Tensor::from_vec(floats, like.shape(), like.device())?)
-    };
     let mut received = std::collections::HashMap::new();
     for (name, var) in optimizer.parameters() {
-        var.set(&next_tensor(var.as_tensor())?)?;
-        received.insert(format!("adam.m.{name}"), next_tensor(var.as_tensor())?);
-        received.insert(format!("adam.v.{name}"), next_tensor(var.as_tensor())?);
+        var.set(&tensor_from_f32_bytes(&mut values, var.as_tensor())?)?;
+        received.insert(format!("adam.m.{name}"), tensor_from_f32_bytes(&mut values, var.as_tensor())?);
+        received.insert(format!("adam.v.{name}"), tensor_from_f32_bytes(&mut values, var.as_tensor())?);
     }
     let counter = |i: usize| u64::from_le_bytes(counters[8 * i..8 * i + 8].try_into().expect("8 bytes"));
     optimizer.load_state(&received, counter(0))?;

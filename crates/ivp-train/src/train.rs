@@ -30,12 +30,12 @@ use ivp_data::{check_probability, SceneParams};
 use serde::{Deserialize, Serialize};
 
 use crate::checkpoint::{
-    check_depth_head_mult, check_width_mult, export_model, load_checkpoint, load_model, network_from,
+    check_depth_head_mult, check_width_mult, export_model, load_checkpoint, load_model, mean_of, network_from,
     restore_parameters, save_checkpoint,
 };
 use crate::distributed::{
-    any_rank, batch_part, broadcast_from_root, share_training_state, sum_gradients, sum_over_ranks, ProcessGroup,
-    SingleProcess,
+    any_rank, batch_part, broadcast_from_root, f32_bytes, share_training_state, sum_gradients, sum_over_ranks,
+    tensor_from_f32_bytes, ProcessGroup, SingleProcess,
 };
 use crate::eval::FIRST_TARGET;
 use crate::guide::{Guide, GuideChoice, GuideSource, GuideTarget};
@@ -569,7 +569,7 @@ pub fn train_on(
                 let real = config.validation_data.as_deref().unwrap_or(Path::new("")).display();
                 bar.println(format!(
                     "model = {}, the lowest D-MSE on {real} since step {}: validation {}",
-                    describe_window(config, best),
+                    describe_model_steps(&window_steps(config, best)),
                     selection.start.unwrap_or(0),
                     scores.describe(&fill)
                 ));
@@ -577,7 +577,7 @@ pub fn train_on(
                 model_steps = window_steps(config, best);
             } else {
                 if let Some(scores) = write_model(config, &checkpoints, step, path, &validation, &mut run.log)? {
-                    let model = describe_window(config, step);
+                    let model = describe_model_steps(&window_steps(config, step));
                     bar.println(format!("model = {model}: validation {}", scores.describe(&fill)));
                     last_validation = Some(scores);
                 }
@@ -679,19 +679,22 @@ fn window_paths(config: &TrainConfig, checkpoints: &Path, step: u64) -> Vec<Path
     window_steps(config, step).into_iter().map(|s| checkpoint_path(checkpoints, s)).collect()
 }
 
-/// "step S" or "mean of steps A, B, S", as the run prints what its model is.
-fn describe_window(config: &TrainConfig, step: u64) -> String {
-    match window_steps(config, step).as_slice() {
-        [one] => format!("step {one}"),
-        steps => format!("mean of steps {}", steps.iter().map(u64::to_string).collect::<Vec<_>>().join(", ")),
+/// What a model of the parameters of `steps` is, as the run and `ivp train` print it: "the
+/// parameters of step S" or "the mean of the parameters of steps A, B, S".
+pub fn describe_model_steps(steps: &[u64]) -> String {
+    match steps {
+        [one] => format!("the parameters of step {one}"),
+        steps => {
+            let steps: Vec<String> = steps.iter().map(u64::to_string).collect();
+            format!("the mean of the parameters of steps {}", steps.join(", "))
+        }
     }
 }
 
-/// The network of the window that ends at `step`, on every rank: the mean of the checkpoints of
-/// the steps before it (read by rank 0, which alone reads the run folder) and of the parameters
-/// being trained, which are step `step`'s. It is added up in the order of the steps, as
-/// [`export_model`] adds up the same window once `step`'s checkpoint is written, so the model file
-/// is the network that was validated, to the bit.
+/// The network of the window that ends at `step`, on every rank: the mean ([`mean_of`], as
+/// [`export_model`] takes it once `step`'s checkpoint is written, so the model file is the network
+/// validated, to the bit) of the checkpoints of the steps before it, read by rank 0, which alone
+/// reads the run folder, and of the parameters being trained, which are step `step`'s.
 fn window_network(
     group: &dyn ProcessGroup,
     config: &TrainConfig,
@@ -703,39 +706,26 @@ fn window_network(
     let current = named_parameters(varmap);
     let mut before = window_paths(config, checkpoints, step);
     before.pop();
-    let count = (before.len() + 1) as f64;
     let mean_bytes = (group.rank() == 0)
         .then(|| -> Result<Vec<u8>> {
-            let loaded = before.iter().map(|path| Ok(load_checkpoint(path)?.params)).collect::<Result<Vec<_>>>()?;
-            let mut bytes = Vec::new();
-            for (name, var) in &current {
-                let mut sum: Option<Tensor> = None;
-                for (params, path) in loaded.iter().zip(&before) {
-                    let t = params.get(name).with_context(|| format!("{}: no parameter `{name}`", path.display()))?;
-                    sum = Some(match sum {
-                        None => t.clone(),
-                        Some(sum) => sum.add(t)?,
-                    });
+            let mut sets = Vec::new();
+            for path in &before {
+                let params = load_checkpoint(path)?.params;
+                if let Some((name, _)) = current.iter().find(|(name, _)| !params.contains_key(name)) {
+                    bail!("{}: no parameter `{name}`", path.display());
                 }
-                let total = match sum {
-                    None => var.as_tensor().clone(),
-                    Some(sum) => sum.add(var.as_tensor())?,
-                };
-                let mean = (total / count)?;
-                bytes.extend(mean.flatten_all()?.to_vec1::<f32>()?.iter().flat_map(|v| v.to_le_bytes()));
+                sets.push(params);
             }
-            Ok(bytes)
+            sets.push(current.iter().map(|(name, var)| (name.clone(), var.as_tensor().clone())).collect());
+            let mean = mean_of(&sets)?;
+            Ok(f32_bytes(&current.iter().map(|(name, _)| mean[name].clone()).collect::<Vec<_>>())?)
         })
         .transpose()?;
     let bytes = broadcast_from_root(group, mean_bytes);
     let mut values = bytes.as_slice();
     let mut mean = std::collections::HashMap::new();
     for (name, var) in &current {
-        let (head, rest) = values.split_at(4 * var.elem_count());
-        values = rest;
-        let floats: Vec<f32> =
-            head.chunks_exact(4).map(|b| f32::from_le_bytes(b.try_into().expect("4 bytes"))).collect();
-        mean.insert(name.clone(), Tensor::from_vec(floats, var.shape(), var.device())?);
+        mean.insert(name.clone(), tensor_from_f32_bytes(&mut values, var.as_tensor())?);
     }
     let name = checkpoint_path(checkpoints, step);
     Ok(network_from(&name, &mean, model_config)?.detached())
@@ -1165,10 +1155,10 @@ mod tests {
         assert_eq!(window_steps(&config, 1100), [750, 1000, 1100], "the last step, off the grid");
         assert_eq!(window_steps(&config, 250), [250], "no checkpoint before the first");
         assert_eq!(window_steps(&config, 500), [250, 500]);
-        assert_eq!(describe_window(&config, 500), "mean of steps 250, 500");
+        assert_eq!(describe_model_steps(&window_steps(&config, 500)), "the mean of the parameters of steps 250, 500");
         let one = TrainConfig { average_checkpoints: 1, ..config };
         assert_eq!(window_steps(&one, 1000), [1000]);
-        assert_eq!(describe_window(&one, 1000), "step 1000");
+        assert_eq!(describe_model_steps(&window_steps(&one, 1000)), "the parameters of step 1000");
     }
 
     #[test]

@@ -12,7 +12,7 @@ use crate::demo::{demo_config, demo_methods, evaluation_data, model_path, plan_t
 use crate::distributed::{broadcast_from_root, ProcessGroup, SingleProcess};
 use crate::eval::{evaluate, format_table, DEFAULT_TARGETS};
 use crate::onnx::{export_onnx, OPSET};
-use crate::train::{train, train_on, RunOptions, TrainConfig, TrainOverrides};
+use crate::train::{describe_model_steps, train, train_on, RunOptions, TrainConfig, TrainOverrides};
 
 #[derive(Args)]
 pub struct TrainArgs {
@@ -131,13 +131,9 @@ fn run_train_on(group: &dyn ProcessGroup, args: TrainArgs, progress: bool) -> Re
     if let (Some(v), Some(f)) = (summary.last_validation, summary.fill) {
         println!("validation after {} steps ({minutes:.1} min): {}", summary.steps_done, v.describe(&f));
     }
-    let steps: Vec<String> = summary.model_steps.iter().map(u64::to_string).collect();
-    match (&summary.model_path, steps.as_slice()) {
-        (Some(path), [step]) => println!("model written to {} (the parameters of step {step})", path.display()),
+    match (&summary.model_path, summary.model_steps.as_slice()) {
         (Some(path), []) => println!("model written to {}", path.display()),
-        (Some(path), steps) => {
-            println!("model written to {} (the mean of the parameters of steps {})", path.display(), steps.join(", "))
-        }
+        (Some(path), steps) => println!("model written to {} ({})", path.display(), describe_model_steps(steps)),
         (None, _) => println!("stopped at step {}: continue with --resume", summary.steps_done),
     }
     Ok(())
