@@ -8,7 +8,8 @@ RUN_DIR/model.safetensors's metadata, else the last; validation.sh's val320.json
 SCORES_DIR, the generated set scored by the current binary, take precedence). Prints markdown: per
 model, D-MSE and its ratio to fill on the 12 clips at 320x240 and on the 8 of blender-dev-extra
 among them (with the worst clip and how many clips are worse than fill) and on the 1080p clips at
-every scale scored (the worst frame, every clip), ms/frame; then mean +- sd over the models, the
+every scale scored (the worst frame, every clip), ms/frame; then mean +- sd over the models (also of
+D-SSIM and temporal consistency), the
 worst against the best, and the rank agreement (Spearman) of the printed validations (generated
 frames; real clips, with --validation-data) with the 12 clips, the 8 and the 1080p clips.
 """
@@ -128,6 +129,7 @@ def main(args):
         dev12 = load(os.path.join(scores_dir, "dev12.json"))
         mname, m, fill = model_scores(dev12)
         row["dev12"] = (m["d_mse"], fill["d_mse"], m["ms_per_frame"])
+        row["other"] = {"320x240 D-SSIM": m["d_ssim"], "320x240 TC": m["tc"]}
         row["extra8"] = (pooled(dev12, mname, "blender-dev-extra/"), pooled(dev12, "fill", "blender-dev-extra/"))
         clips = per_clip(dev12, mname)
         worst = max(clips.items(), key=lambda kv: kv[1])
@@ -139,6 +141,7 @@ def main(args):
             mname, m, fill = model_scores(report)
             row["hd"][scale] = (m["d_mse"], fill["d_mse"], m["ms_per_frame"], worst_frame(report, mname),
                                 per_clip(report, mname))
+            row["other"][f"1080p --scale {scale} D-SSIM"] = m["d_ssim"]
         row["validation"] = recomputed_validation(scores_dir) or (last_validation(run_dir) if run_dir else None)
         row["real_validation"] = last_real_validation(run_dir) if run_dir else None
         rows.append(row)
@@ -182,6 +185,11 @@ def main(args):
     summary("320x240, the 8 clips of blender-dev-extra, D-MSE", [r["extra8"][0] for r in rows])
     for s in scales:
         summary(f"1080p --scale {s}, D-MSE", [r["hd"][s][0] for r in rows if s in r["hd"]])
+    for label in rows[0]["other"]:
+        values = [r["other"][label] for r in rows if r["other"].get(label) is not None]
+        if len(values) >= 2:
+            better = "lower" if label.endswith("TC") else "higher"
+            print(f"- {label} ({better} is better): {statistics.mean(values):.4g} +- {statistics.stdev(values):.2g}")
     with_val = [r for r in rows if r["validation"]]
     if len(with_val) >= 2:
         rho = spearman([r["validation"][0] for r in with_val], [r["dev12"][0] for r in with_val])

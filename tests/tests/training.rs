@@ -287,6 +287,27 @@ fn a_run_validated_on_real_clips_keeps_the_checkpoint_they_score_best() {
     assert_eq!(train(&last, &dir.path().join("last"), &quiet()).unwrap().model_steps, [8]);
 }
 
+#[test]
+fn a_run_minimises_the_mse_term_times_its_weight() {
+    let dir = tempfile::tempdir().unwrap();
+    let weight = 10.0;
+    train(&TrainConfig { mse_weight: weight, ..tiny(4) }, dir.path(), &quiet()).unwrap();
+    let log = std::fs::read_to_string(dir.path().join("metrics.csv")).unwrap();
+    let header: Vec<&str> = log.lines().next().unwrap().split(',').collect();
+    let column = |name: &str| header.iter().position(|&c| c == name).unwrap();
+    let rows: Vec<Vec<f64>> =
+        log.lines().skip(1).map(|line| line.split(',').map(|f| f.parse().unwrap_or(f64::NAN)).collect()).collect();
+    assert_eq!(rows.len(), 2);
+    for row in rows {
+        let [mse, ssim, smooth, guide, total] =
+            ["mse", "ssim", "smooth", "guide", "total"].map(|name| row[column(name)]);
+        // metrics.csv keeps 6 decimals.
+        let others = ssim + 0.001 * smooth + guide;
+        assert!((total - (weight * mse + others)).abs() < 2e-5, "total {total}: mse {mse}, others {others}");
+        assert!((total - (mse + others)).abs() > 1e-3, "the weight changed nothing: mse {mse}");
+    }
+}
+
 /// Reads metrics.csv's real-clip D-MSE (column val_real_d_mse) by step, where a row has one.
 fn real_clip_scores(run: &Path) -> Vec<(u64, f64)> {
     let log = std::fs::read_to_string(run.join("metrics.csv")).unwrap();

@@ -241,9 +241,12 @@ fn build_ivp(root: &Path) -> Result<PathBuf> {
 }
 
 /// Builds the `ivp` binary in the dev profile (what the tests already built) and returns its path.
+/// It is built as `cargo test --workspace` builds it, beside every test target: the tests'
+/// dependencies (tract's) enable features of shared crates (getrandom's, bytes'), and a build of
+/// the binary alone would resolve them without, then recompile candle and the ivp crates (90 s).
 fn build_ivp_debug(root: &Path) -> Result<PathBuf> {
     let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
-    run(Command::new(cargo).current_dir(root).args(["build", "-p", "ivp-train", "--bin", "ivp"]))?;
+    run(Command::new(cargo).current_dir(root).args(["build", "--workspace", "--tests"]))?;
     Ok(target_dir(root).join("debug/ivp"))
 }
 
