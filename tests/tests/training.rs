@@ -6,8 +6,10 @@ use std::path::Path;
 use candle_core::Tensor;
 use ivp_core::inference::ModelInfiller;
 use ivp_core::infill::classical_infiller;
+use ivp_core::nn::loss::LossWeights;
 use ivp_train::checkpoint::{export_model, load_checkpoint, load_model};
 use ivp_train::eval::{evaluate, Method};
+use ivp_train::metrics_csv::MetricsLog;
 use ivp_train::train::{latest_checkpoint, train, RunOptions, TrainConfig};
 
 /// A run small enough for a test: width 1/8, 2 crops of 32x32 per step, one generated validation
@@ -292,17 +294,13 @@ fn a_run_minimises_the_mse_term_times_its_weight() {
     let dir = tempfile::tempdir().unwrap();
     let weight = 10.0;
     train(&TrainConfig { mse_weight: weight, ..tiny(4) }, dir.path(), &quiet()).unwrap();
-    let log = std::fs::read_to_string(dir.path().join("metrics.csv")).unwrap();
-    let header: Vec<&str> = log.lines().next().unwrap().split(',').collect();
-    let column = |name: &str| header.iter().position(|&c| c == name).unwrap();
-    let rows: Vec<Vec<f64>> =
-        log.lines().skip(1).map(|line| line.split(',').map(|f| f.parse().unwrap_or(f64::NAN)).collect()).collect();
-    assert_eq!(rows.len(), 2);
-    for row in rows {
-        let [mse, ssim, smooth, guide, total] =
-            ["mse", "ssim", "smooth", "guide", "total"].map(|name| row[column(name)]);
+    let log = MetricsLog::resume(dir.path().join("metrics.csv"), u64::MAX).unwrap();
+    assert_eq!(log.rows().len(), 2);
+    for row in log.rows() {
+        let l = &row.loss;
+        let others = f64::from(l.ssim) + LossWeights::default().smooth * f64::from(l.smooth) + f64::from(l.guide);
+        let (mse, total) = (f64::from(l.mse), f64::from(l.total));
         // metrics.csv keeps 6 decimals.
-        let others = ssim + 0.001 * smooth + guide;
         assert!((total - (weight * mse + others)).abs() < 2e-5, "total {total}: mse {mse}, others {others}");
         assert!((total - (mse + others)).abs() > 1e-3, "the weight changed nothing: mse {mse}");
     }
