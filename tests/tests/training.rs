@@ -290,19 +290,25 @@ fn a_run_validated_on_real_clips_keeps_the_checkpoint_they_score_best() {
 }
 
 #[test]
-fn a_run_minimises_the_mse_term_times_its_weight() {
+fn a_run_minimises_the_mse_term_times_its_weight_from_its_step() {
     let dir = tempfile::tempdir().unwrap();
     let weight = 10.0;
-    train(&TrainConfig { mse_weight: weight, ..tiny(4) }, dir.path(), &quiet()).unwrap();
+    // Two log rows of two steps each: the paper's weight in the first, `weight` in the second.
+    train(&TrainConfig { mse_weight: weight, mse_weight_from: 0.5, ..tiny(4) }, dir.path(), &quiet()).unwrap();
     let log = MetricsLog::resume(dir.path().join("metrics.csv"), u64::MAX).unwrap();
     assert_eq!(log.rows().len(), 2);
-    for row in log.rows() {
+    for (row, expected) in log.rows().iter().zip([1.0, weight]) {
         let l = &row.loss;
         let others = f64::from(l.ssim) + LossWeights::default().smooth * f64::from(l.smooth) + f64::from(l.guide);
         let (mse, total) = (f64::from(l.mse), f64::from(l.total));
         // metrics.csv keeps 6 decimals.
-        assert!((total - (weight * mse + others)).abs() < 2e-5, "total {total}: mse {mse}, others {others}");
-        assert!((total - (mse + others)).abs() > 1e-3, "the weight changed nothing: mse {mse}");
+        let step = row.step;
+        assert!(
+            (total - (expected * mse + others)).abs() < 2e-5,
+            "step {step}: total {total}, mse {mse}, others {others}"
+        );
+        let other_weight = if expected == 1.0 { weight } else { 1.0 };
+        assert!((total - (other_weight * mse + others)).abs() > 1e-3, "step {step}: both weights fit, mse {mse}");
     }
 }
 

@@ -8,6 +8,7 @@ use ivp_core::geometry::NearestKnown;
 use ivp_core::infill::rules::background_source;
 use ivp_core::nn::loss::abs;
 use ivp_core::nn::model::{NetInput, Variant};
+use ivp_core::prior::background_depth_threshold;
 use ivp_core::{DepthMap, Image, VectorField};
 use serde::{Deserialize, Serialize};
 
@@ -65,20 +66,22 @@ pub enum GuideSource {
     DepthFill,
 }
 
-/// The guide term of one step: its target (`None`: no guide) and its weight.
+/// The guide terms of one step: the guide's target (`None`: no guide) and weight, and the weight
+/// of the foreground guard ([`GuideTarget::at_foreground_reads`]; 0: none).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Guide {
     pub source: Option<GuideSource>,
     pub weight: f64,
+    pub foreground_guard: f64,
 }
 
 impl Guide {
     /// No guide term.
-    pub const NONE: Guide = Guide { source: None, weight: 0.0 };
+    pub const NONE: Guide = Guide { source: None, weight: 0.0, foreground_guard: 0.0 };
 
-    /// The guide of `variant` ([`GuideSource::of`]) at `weight`.
+    /// The guide of `variant` ([`GuideSource::of`]) at `weight`, without the foreground guard.
     pub fn of(variant: Variant, weight: f64) -> Self {
-        Self { source: GuideSource::of(variant), weight }
+        Self { source: GuideSource::of(variant), weight, foreground_guard: 0.0 }
     }
 }
 
@@ -146,7 +149,7 @@ impl GuideTarget {
             let depth: DepthMap = ivp_core::nn::tensor::from_tensor(&warped_depth.narrow(0, i, 1)?)?;
             let hole: Image<1> = ivp_core::nn::tensor::from_tensor(&mask.narrow(0, i, 1)?)?;
             let (w, h) = (depth.width(), depth.height());
-            let known: Vec<bool> = depth.pixels().iter().map(|&[z]| z != 0.0 && !z.is_nan()).collect();
+            let known = warp_covered(&depth);
             let nearest = NearestKnown::new(w, h, &known);
             let mut field = VectorField::zeros(w, h);
             for v in 0..h {
@@ -161,6 +164,45 @@ impl GuideTarget {
             }
             Ok(field)
         })
+    }
+
+    /// This target on those of its pixels alone whose vector in `vectors` (B, 2, H, W), rounded to
+    /// the nearest pixel, reads a known pixel of `warped_depth` nearer than the pixel's background
+    /// depth threshold (ALGORITHMS.md §6.5): the *foreground guard*. Why: a vector that reads the
+    /// near object beside a sliver lowers the paper's losses against reading the black hole, and
+    /// a heavier MSE term made some seeds settle there (results/recipe-hd); the guard pulls such
+    /// vectors towards the background side and lets go as soon as they read it. Where it applies
+    /// is decided on the vectors as they are, not differentiated.
+    pub(crate) fn at_foreground_reads(&self, vectors: &Tensor, warped_depth: &Tensor) -> Result<Self> {
+        let (b, _, h, w) = warped_depth.dims4()?;
+        if vectors.dims() != [b, 2, h, w] {
+            bail!("foreground guard: vectors {:?} for a warped depth {:?}", vectors.dims(), warped_depth.dims());
+        }
+        let vectors = vectors.detach().flatten_all()?.to_vec1::<f32>()?;
+        let guided = self.weight.flatten_all()?.to_vec1::<f32>()?;
+        let plane = h * w;
+        let mut at_foreground = vec![0f32; b * plane];
+        for i in 0..b {
+            let depth: DepthMap = ivp_core::nn::tensor::from_tensor(&warped_depth.narrow(0, i, 1)?)?;
+            let known = warp_covered(&depth);
+            let thresholds = background_depth_threshold(&known, &depth);
+            let (dx, dy) = (&vectors[2 * i * plane..][..plane], &vectors[(2 * i + 1) * plane..][..plane]);
+            for p in (0..plane).filter(|&p| guided[i * plane + p] != 0.0) {
+                let Some(threshold) = thresholds[p] else { continue };
+                let (x, y) = ((p % w) as f32 + dx[p], (p / w) as f32 + dy[p]);
+                let (x, y) = (x.round(), y.round());
+                if !(x >= 0.0 && y >= 0.0 && x < w as f32 && y < h as f32) {
+                    continue;
+                }
+                let (x, y) = (x as usize, y as usize);
+                if known[y * w + x] && depth.at(x, y) < threshold {
+                    at_foreground[i * plane + p] = 1.0;
+                }
+            }
+        }
+        let weight = Tensor::from_vec(at_foreground, (b, 1, h, w), warped_depth.device())?;
+        let count = weight.sum_all()?.to_scalar::<f32>()? as f64;
+        Ok(Self { vectors: self.vectors.clone(), weight, count })
     }
 
     /// Stacks the target field `field_of(i)` of each sample `i` of a (B, C, H, W) `like`; a
@@ -188,6 +230,11 @@ impl GuideTarget {
         let difference = abs(&(vectors - &self.vectors)?)?.broadcast_mul(&self.weight)?.sum_all()?;
         Ok((difference / (2.0 * count.max(1.0)))?)
     }
+}
+
+/// The pixels the warp covered: those of non-zero, non-NaN warped depth.
+fn warp_covered(warped_depth: &DepthMap) -> Vec<bool> {
+    warped_depth.pixels().iter().map(|&[z]| z != 0.0 && !z.is_nan()).collect()
 }
 
 #[cfg(test)]
@@ -221,6 +268,43 @@ mod tests {
         assert_eq!(all_hole.to_scalar::<f32>().unwrap(), 0.0);
         let none = fill_guide_loss(&zeros, &depth, &mask.zeros_like().unwrap()).unwrap();
         assert_eq!(none.to_scalar::<f32>().unwrap(), 0.0);
+    }
+
+    #[test]
+    fn the_foreground_guard_applies_where_a_vector_reads_the_near_side_only() {
+        // The strip of the test above: foreground (depth 1) at 0..3, a hole at 3..6, background
+        // (depth 5) at 6..9; the hole's background threshold is (1 + 5) / 2 = 3.
+        let (w, h) = (9, 1);
+        let depth: Vec<f32> = (0..w).map(|x| [1.0, 0.0, 5.0][x / 3]).collect();
+        let mask: Vec<f32> = (0..w).map(|x| f32::from((3..6).contains(&x))).collect();
+        let (depth, mask) = (tensor(depth, (1, 1, h, w)), tensor(mask, (1, 1, h, w)));
+        let fill = GuideTarget::fill_vectors(&depth, &mask).unwrap();
+        // Hole pixels 3, 4, 5 read pixel 2 (foreground), 8 (background) and 4 (the hole, unknown).
+        let dx = vec![0.0, 0.0, 0.0, -1.0, 4.0, -1.0, 0.0, 0.0, 0.0];
+        let vectors = Var::from_tensor(&tensor([dx.clone(), vec![0.0; 9]].concat(), (1, 2, h, w))).unwrap();
+        let guard = fill.at_foreground_reads(&vectors, &depth).unwrap();
+        assert_eq!(guard.count, 1.0);
+        // Pixel 3's target is (3, 0): |-1 - 3| over 2 components, divided by the 3 hole pixels.
+        let loss = guard.loss(&vectors, 3.0).unwrap();
+        assert_eq!(loss.to_scalar::<f32>().unwrap(), 4.0 / 6.0);
+        let grad = loss.backward().unwrap().get(&vectors).unwrap().flatten_all().unwrap().to_vec1::<f32>().unwrap();
+        let moved: Vec<usize> = (0..2 * w).filter(|&i| grad[i] != 0.0).collect();
+        assert_eq!(moved, [3], "pulls pixel 3 alone, towards the background: {grad:?}");
+        assert!(grad[3] < 0.0);
+        // Rounded to the nearest pixel (4 and 5 read pixel 2); outside the frame (3), or reading
+        // the hole: no guard.
+        let outside =
+            tensor([vec![0.0, 0.0, 0.0, -3.6, -2.4, -3.4, 0.0, 0.0, 0.0], vec![0.0; 9]].concat(), (1, 2, h, w));
+        assert_eq!(fill.at_foreground_reads(&outside, &depth).unwrap().count, 2.0);
+        let in_the_hole =
+            tensor([vec![0.0, 0.0, 0.0, 1.0, 0.4, -1.0, 0.0, 0.0, 0.0], vec![0.0; 9]].concat(), (1, 2, h, w));
+        assert_eq!(fill.at_foreground_reads(&in_the_hole, &depth).unwrap().count, 0.0);
+        // Nothing known: no threshold, no guard, and a zero loss rather than NaN.
+        let unknown = depth.zeros_like().unwrap();
+        let none = GuideTarget::fill_vectors(&unknown, &mask).unwrap().at_foreground_reads(&vectors, &unknown).unwrap();
+        assert_eq!((none.count, none.loss(&vectors, 3.0).unwrap().to_scalar::<f32>().unwrap()), (0.0, 0.0));
+        // Vectors of another size are an error.
+        assert!(fill.at_foreground_reads(&vectors.narrow(3, 0, 8).unwrap(), &depth).is_err());
     }
 
     #[test]

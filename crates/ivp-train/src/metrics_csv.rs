@@ -15,7 +15,8 @@ pub struct LossValues {
     pub mse: f32,
     pub ssim: f32,
     pub smooth: f32,
-    /// The guide term (0 once it has faded), already weighted.
+    /// The guide terms, already weighted: the fading guide (0 once it has faded) plus the
+    /// foreground guard (`TrainConfig::foreground_guard`).
     pub guide: f32,
     pub total: f32,
     /// The global norm of the step's gradients before any clipping; a window keeps its largest.

@@ -67,7 +67,7 @@ fn loss_panel(rows: &[MetricsRow]) -> Panel {
         ("masked MSE", |r| r.loss.mse),
         ("SSIM term", |r| r.loss.ssim),
         ("smoothness (unweighted)", |r| r.loss.smooth),
-        ("guide term (weighted)", |r| r.loss.guide),
+        ("guide terms (weighted)", |r| r.loss.guide),
     ];
     let curves = terms
         .into_iter()

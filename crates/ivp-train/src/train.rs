@@ -81,11 +81,21 @@ pub struct TrainConfig {
     /// The guide's target: `auto` (from what the variant reads), `fill` or `prior` ([`GuideChoice`]).
     pub guide: GuideChoice,
     /// Weight of the MSE term of the loss, beside 1 for the SSIM term and 0.001 for smoothness
-    /// (ALGORITHMS.md §6.4; the paper's and the recipe's: 1). Heavier weights gave most seeds a
-    /// much lower D-MSE on real 320x240 clips, but at 5 one seed of five and at 10 one of three
-    /// copied the foreground into some clips' holes, and at 30 the one run tried did everywhere
-    /// (results/recipe-hd, "The MSE term weighed by 5 or 10").
+    /// (ALGORITHMS.md §6.4; the paper's: 1), from the fraction `mse_weight_from` of the run on.
+    /// The recipe's 5 from half-way: over five seeds, lower D-MSE than the paper's weights on
+    /// real clips at 320x240 and at 1080p. At 5 or 10 from the start one seed of five and one of
+    /// three copied the foreground into some clips' holes, and at 30 the one run tried did
+    /// everywhere (results/recipe-hd, "The MSE term weighed by 5 from half-way").
     pub mse_weight: f64,
+    /// The fraction of `steps` from which the MSE term takes `mse_weight`; before it, the
+    /// paper's 1. The heavier term then refines a model whose vectors the paper's loss has already
+    /// laid out, and no seed measured copies the foreground.
+    pub mse_weight_from: f64,
+    /// Weight of the foreground guard, at every step (0: none): a guide term towards the `fill`
+    /// vectors on the disocclusion pixels whose vector reads a known pixel nearer than the pixel's
+    /// background depth threshold (ALGORITHMS.md §6.5), divided by all disocclusion pixels. For
+    /// the variants that read depth. See `GuideTarget::at_foreground_reads`.
+    pub foreground_guard: f64,
     /// Peak learning rate of Adam.
     pub lr: f64,
     /// Gradients whose global norm exceeds this are scaled down to it before Adam's update (0:
@@ -159,7 +169,9 @@ impl Default for TrainConfig {
             fine_texture_probability: 0.0,
             guide_steps: 500,
             guide: GuideChoice::Auto,
-            mse_weight: 1.0,
+            mse_weight: 5.0,
+            mse_weight_from: 0.5,
+            foreground_guard: 0.0,
             lr: 1e-3,
             max_grad_norm: 1.0,
             warmup_steps: 100,
@@ -221,6 +233,11 @@ pub struct TrainOverrides {
     #[arg(long)]
     #[serde(skip_serializing_if = "Option::is_none")]
     pub mse_weight: Option<f64>,
+    /// Weight of the foreground guard: pulls vectors that read the near object towards the
+    /// background side, at every step (0: none).
+    #[arg(long)]
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub foreground_guard: Option<f64>,
     /// Seed of the data and of the initial weights: the same seed gives the same run.
     #[arg(long)]
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -307,6 +324,21 @@ impl TrainConfig {
             "mse_weight must be 0 or a positive number, got {}",
             self.mse_weight
         );
+        ensure!(
+            (0.0..=1.0).contains(&self.mse_weight_from),
+            "mse_weight_from must be in [0, 1] (a fraction of steps), got {}",
+            self.mse_weight_from
+        );
+        ensure!(
+            self.foreground_guard >= 0.0 && self.foreground_guard.is_finite(),
+            "foreground_guard must be 0 or a positive number, got {}",
+            self.foreground_guard
+        );
+        ensure!(
+            self.foreground_guard == 0.0 || (self.variant.predicts_vectors() && self.variant.reads_depth()),
+            "foreground_guard: variant {} does not read depth and predict vectors",
+            self.variant
+        );
         ensure!(self.lr > 0.0 && self.lr.is_finite(), "lr must be a positive number, got {}", self.lr);
         ensure!(
             self.max_grad_norm >= 0.0 && self.max_grad_norm.is_finite(),
@@ -357,6 +389,14 @@ impl TrainConfig {
         (self.validation_data.is_some() && start < self.steps).then_some(start)
     }
 
+    /// The weights of the loss's terms at step `step` (0-based): the paper's, with the MSE term's
+    /// `mse_weight` from the fraction `mse_weight_from` of the run on.
+    pub fn loss_weights_at(&self, step: u64) -> LossWeights {
+        let from = (self.mse_weight_from * self.steps as f64).ceil() as u64;
+        let mse = if step >= from { self.mse_weight } else { LossWeights::default().mse };
+        LossWeights { mse, ..LossWeights::default() }
+    }
+
     /// The target of the guide term (`None` for the variant without vectors).
     pub fn guide_source(&self) -> Result<Option<GuideSource>> {
         self.guide.source_for(self.variant)
@@ -364,7 +404,11 @@ impl TrainConfig {
 
     /// The guide term of step `step`: its target, weighted 1 fading linearly to 0 at `guide_steps`.
     pub fn guide_at(&self, step: u64) -> Result<Guide> {
-        Ok(Guide { source: self.guide_source()?, weight: self.guide_weight_at(step) })
+        Ok(Guide {
+            source: self.guide_source()?,
+            weight: self.guide_weight_at(step),
+            foreground_guard: self.foreground_guard,
+        })
     }
 
     /// The weight of the guide term at step `step`: 1 fading linearly to 0 at `guide_steps`.
@@ -501,7 +545,6 @@ pub fn train_on(
         StreamOptions { workers: config.data_workers, ..Default::default() },
     )?;
 
-    let weights = LossWeights { mse: config.mse_weight, ..LossWeights::default() };
     let bar = progress_bar(options.progress && is_root, config.steps, "training");
     bar.set_position(first_step);
     let start = Instant::now();
@@ -527,6 +570,7 @@ pub fn train_on(
         debug_assert_eq!(batch.step, step);
         optimizer.set_lr(config.lr_at(step));
         let guide = config.guide_at(step)?;
+        let weights = config.loss_weights_at(step);
         let loss = training_step(&net, &mut optimizer, &batch_input(&batch), &batch.truth, &weights, guide, group)
             .with_context(|| format!("training stopped at step {step}; the last good checkpoint is kept"))?;
         step += 1;
@@ -869,14 +913,24 @@ pub fn batch_gradients(
     let out = net.forward(input)?;
     let terms = ivp_loss_normalised(&out.frame, truth, input.mask, out.vectors.as_ref(), weights, &counts)?;
     let mut total = terms.total.clone();
-    let mut guide = 0.0;
+    let mut guide_value = 0.0;
     if let (Some(vectors), Some(target)) = (&out.vectors, &guide_target) {
         let term = (target.loss(vectors, guide_count)? * guide_weight)?;
-        guide = term.to_scalar::<f32>()?;
+        guide_value = term.to_scalar::<f32>()?;
+        total = (total + term)?;
+    }
+    if let (Some(vectors), true) = (&out.vectors, guide.foreground_guard > 0.0) {
+        let fill = match (source, guide_target) {
+            (Some(GuideSource::DepthFill), Some(target)) => target,
+            _ => GuideTarget::new(GuideSource::DepthFill, input)?,
+        };
+        let guard = fill.at_foreground_reads(vectors, input.warped_depth)?;
+        let term = (guard.loss(vectors, counts.pixels)? * guide.foreground_guard)?;
+        guide_value += term.to_scalar::<f32>()?;
         total = (total + term)?;
     }
     let scalar = |t: &Tensor| -> Result<f64> { Ok(t.to_scalar::<f32>()? as f64) };
-    let part = [scalar(&terms.mse)?, scalar(&terms.ssim)?, scalar(&terms.smooth)?, guide as f64, scalar(&total)?];
+    let part = [scalar(&terms.mse)?, scalar(&terms.ssim)?, scalar(&terms.smooth)?, guide_value as f64, scalar(&total)?];
     let [mse, ssim, smooth, guide, total_value] = sum_over_ranks(group, &part).try_into().expect("5 terms");
     let values = LossValues {
         mse: mse as f32,
@@ -1008,6 +1062,7 @@ mod tests {
             crop: Some(32),
             lr: Some(2e-3),
             mse_weight: Some(3.0),
+            foreground_guard: Some(0.5),
             seed: Some(9),
             checkpoint_every: Some(11),
             validate_every: Some(13),
@@ -1023,6 +1078,7 @@ mod tests {
             crop: 32,
             lr: 2e-3,
             mse_weight: 3.0,
+            foreground_guard: 0.5,
             seed: 9,
             checkpoint_every: 11,
             validate_every: 13,
@@ -1051,6 +1107,7 @@ mod tests {
             warmup_steps: 0,
             final_lr_fraction: 1.0,
             guide_steps: 0,
+            mse_weight: 1.0,
             ..TrainConfig::default()
         };
         assert_eq!(paper, expected);
@@ -1092,7 +1149,7 @@ mod tests {
             let (input, truth) = (toy_input(&t), &t[4]);
             let (net, varmap) = IvpNet::seeded(ModelConfig::new(Variant::Full, 0.125), 5).unwrap();
             let params = named_parameters(&varmap);
-            let guide = Guide::of(Variant::Full, 0.5);
+            let guide = Guide { foreground_guard: 0.5, ..Guide::of(Variant::Full, 0.5) };
             let (_, grads) =
                 batch_gradients(&net, &params, &input, truth, &LossWeights::default(), guide, group).unwrap();
             params.iter().map(|(_, v)| grads.get(v).unwrap().flatten_all().unwrap().to_vec1().unwrap()).collect()
@@ -1306,6 +1363,68 @@ mod tests {
     }
 
     #[test]
+    fn the_mse_weight_applies_from_its_fraction_of_the_run_on() {
+        let paper = LossWeights::default();
+        assert_eq!(TrainConfig::default().loss_weights_at(0), paper);
+        let config = TrainConfig { steps: 25, mse_weight: 5.0, mse_weight_from: 0.5, ..TrainConfig::default() };
+        // From step ceil(0.5 * 25) = 13 on.
+        assert_eq!(config.loss_weights_at(12), paper);
+        assert_eq!(config.loss_weights_at(13), LossWeights { mse: 5.0, ..paper });
+        assert_eq!(config.loss_weights_at(u64::MAX), LossWeights { mse: 5.0, ..paper });
+        let from_the_start = TrainConfig { mse_weight_from: 0.0, ..config.clone() };
+        assert_eq!(from_the_start.loss_weights_at(0), LossWeights { mse: 5.0, ..paper });
+        for (from, valid) in [(0.0, true), (1.0, true), (-0.1, false), (1.5, false), (f64::NAN, false)] {
+            match (TrainConfig { mse_weight_from: from, ..config.clone() }).validate() {
+                Ok(()) => assert!(valid, "mse_weight_from {from} accepted"),
+                Err(e) => assert!(!valid && e.to_string().starts_with("mse_weight_from must be"), "{from}: {e}"),
+            }
+        }
+    }
+
+    #[test]
+    fn the_foreground_guard_is_a_finite_non_negative_weight_for_variants_that_read_depth() {
+        for (weight, valid) in [(0.0, true), (2.0, true), (-1.0, false), (f64::NAN, false), (f64::INFINITY, false)] {
+            match (TrainConfig { foreground_guard: weight, ..TrainConfig::default() }).validate() {
+                Ok(()) => assert!(valid, "foreground_guard {weight} accepted"),
+                Err(e) => assert!(!valid && e.to_string().starts_with("foreground_guard must be"), "{weight}: {e}"),
+            }
+        }
+        for variant in Variant::ALL {
+            let config = TrainConfig { variant, foreground_guard: 1.0, ..TrainConfig::default() };
+            let reads_depth = variant.predicts_vectors() && variant.reads_depth();
+            assert_eq!(config.validate().is_ok(), reads_depth, "{variant}");
+            let unguarded = TrainConfig { foreground_guard: 0.0, ..config };
+            assert!(unguarded.validate().is_ok(), "{variant}");
+        }
+    }
+
+    #[test]
+    fn the_foreground_guard_adds_its_term_to_the_loss_and_the_guide_column() {
+        let mut batch = toy_batch();
+        // The warp leaves no depth in its holes.
+        batch[1] = (&batch[1] * batch[2].affine(-1.0, 1.0).unwrap()).unwrap();
+        let (input, truth) = (toy_input(&batch), &batch[4]);
+        let (net, mut varmap) = IvpNet::seeded(ModelConfig::new(Variant::Full, 0.125), 5).unwrap();
+        // Vectors about 3 rows up, off the toy batch's rows of holes, onto its random depths.
+        varmap.set_one("d9.bias", Tensor::new(&[0f32, -3.0], &candle_core::Device::Cpu).unwrap()).unwrap();
+        let params = named_parameters(&varmap);
+        let losses = |foreground_guard: f64| {
+            let guide = Guide { foreground_guard, ..Guide::NONE };
+            batch_gradients(&net, &params, &input, truth, &LossWeights::default(), guide, &SingleProcess).unwrap().0
+        };
+        let (plain, guarded) = (losses(0.0), losses(2.0));
+        let vectors = net.forward(&input).unwrap().vectors.unwrap();
+        let guard = GuideTarget::new(GuideSource::DepthFill, &input).unwrap();
+        let guard = guard.at_foreground_reads(&vectors, input.warped_depth).unwrap();
+        assert!(guard.count > 0.0, "the toy batch has vectors that read the near side");
+        let term =
+            2.0 * guard.loss(&vectors, LossCounts::of(input.mask).unwrap().pixels).unwrap().to_scalar::<f32>().unwrap();
+        assert!(term > 0.0);
+        assert_eq!((plain.guide, guarded.guide), (0.0, term));
+        assert!((guarded.total - plain.total - term).abs() <= 1e-6 * guarded.total, "{plain:?} {guarded:?} {term}");
+    }
+
+    #[test]
     fn scene_probabilities_must_be_probabilities() {
         for (p, valid) in [(0.0, true), (0.5, true), (1.0, true), (1.5, false), (-0.1, false), (f64::NAN, false)] {
             let near = TrainConfig { near_column_probability: p, ..TrainConfig::default() };
@@ -1338,7 +1457,7 @@ mod tests {
         let bad = toml::from_str::<TrainConfig>(text).unwrap_err().to_string();
         assert!(bad.contains("auto") && bad.contains("fill") && bad.contains("prior"), "{bad}");
         let guide = config("full", "fill").guide_at(0).unwrap();
-        assert_eq!(guide, Guide { source: Some(GuideSource::DepthFill), weight: 1.0 });
+        assert_eq!(guide, Guide { source: Some(GuideSource::DepthFill), weight: 1.0, foreground_guard: 0.0 });
         // The default recipe's file form is unchanged: `guide` defaults to `auto` when absent.
         let parsed: TrainConfig = toml::from_str("steps = 10").unwrap();
         assert_eq!(parsed.guide, GuideChoice::Auto);
