@@ -4,7 +4,9 @@
 
 use glam::{DMat4, DVec3};
 
+use crate::geometry::{relative_pose, warp_forward, FrameView, Warp};
 use crate::geometry::{DepthMap, HoleMask, Image, Intrinsics, PixelClass, RgbImage, WorldToCamera};
+use crate::infill::InfillContext;
 
 pub const WIDTH: usize = 64;
 pub const HEIGHT: usize = 48;
@@ -36,6 +38,45 @@ pub fn render(camera_x: f64) -> (RgbImage, DepthMap, WorldToCamera) {
     let depth = Image::from_fn(WIDTH, HEIGHT, |u, v| [if on_box(u, v) { BOX_Z } else { WALL_Z } as f32]);
     let pose = WorldToCamera(DMat4::from_translation(DVec3::new(-camera_x, 0.0, 0.0)));
     (image, depth, pose)
+}
+
+/// A rendered frame: image, planar depth and pose.
+pub type Frame = (RgbImage, DepthMap, WorldToCamera);
+
+/// Frames n-2, n and the target t of the box scene (the camera at x = 0.1, 0.2 and 0.3) and the
+/// warp n -> t. The camera moves right, so the wall is uncovered on the right of the box.
+pub struct BoxWarp {
+    pub k: Intrinsics,
+    pub before_last: Frame,
+    pub last: Frame,
+    pub target: Frame,
+    pub warped: Warp,
+}
+
+fn view(frame: &Frame) -> FrameView<'_> {
+    FrameView { image: &frame.0, depth: &frame.1, pose: &frame.2 }
+}
+
+impl BoxWarp {
+    pub fn new() -> Self {
+        let k = intrinsics();
+        let [before_last, last, target] = [0.1, 0.2, 0.3].map(render);
+        let warped = warp_forward(&last.0, &last.1, &k, &relative_pose(&last.2, &target.2));
+        Self { k, before_last, last, target, warped }
+    }
+
+    /// The target's infilling context, with frame n-2 (which the temporal prior needs) and the
+    /// ground truth (which the oracle needs) only when asked for.
+    pub fn context(&self, with_before_last: bool, with_truth: bool) -> InfillContext<'_> {
+        InfillContext {
+            intrinsics: &self.k,
+            last: view(&self.last),
+            before_last: with_before_last.then(|| view(&self.before_last)),
+            target_pose: &self.target.2,
+            warped: &self.warped,
+            ground_truth: with_truth.then_some(&self.target.0),
+        }
+    }
 }
 
 pub const RED: [f32; 3] = [1.0, 0.0, 0.0];

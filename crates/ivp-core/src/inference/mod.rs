@@ -329,55 +329,21 @@ mod tests {
         }
     }
 
-    /// Frames n-2, n and t of the box scene, and the warp n -> t.
-    struct BoxScene {
-        k: crate::geometry::Intrinsics,
-        frames: Vec<(RgbImage, DepthMap, crate::geometry::WorldToCamera)>,
-        warped: crate::geometry::Warp,
-    }
-
-    impl BoxScene {
-        fn new() -> Self {
-            let k = crate::test_scene::intrinsics();
-            let frames: Vec<_> = [0.1, 0.2, 0.3].into_iter().map(crate::test_scene::render).collect();
-            let (last, target) = (&frames[1], &frames[2]);
-            let to_target = crate::geometry::relative_pose(&last.2, &target.2);
-            let warped = crate::geometry::warp_forward(&last.0, &last.1, &k, &to_target);
-            Self { k, frames, warped }
-        }
-
-        fn context(&self, with_before_last: bool) -> InfillContext<'_> {
-            let view = |i: usize| crate::geometry::FrameView {
-                image: &self.frames[i].0,
-                depth: &self.frames[i].1,
-                pose: &self.frames[i].2,
-            };
-            InfillContext {
-                intrinsics: &self.k,
-                last: view(1),
-                before_last: with_before_last.then(|| view(0)),
-                target_pose: &self.frames[2].2,
-                warped: &self.warped,
-                ground_truth: None,
-            }
-        }
-    }
-
     #[test]
     fn an_intensity_network_with_nan_weights_is_an_error() {
         let (net, varmap) = IvpNet::seeded(ModelConfig::new(Variant::Intensity, 0.125), 4).unwrap();
         for var in varmap.all_vars() {
             var.set(&Tensor::full(f32::NAN, var.shape(), &Device::Cpu).unwrap()).unwrap();
         }
-        let scene = BoxScene::new();
-        let err = ModelInfiller::new("ivp", net, 3).predict(&scene.context(true)).unwrap_err().to_string();
+        let scene = crate::test_scene::BoxWarp::new();
+        let err = ModelInfiller::new("ivp", net, 3).predict(&scene.context(true, false)).unwrap_err().to_string();
         assert!(err.contains("non-finite colour"), "{err}");
     }
 
     #[test]
     fn the_model_infiller_reads_the_temporal_prior_only_in_the_variants_that_have_one() {
-        let scene = BoxScene::new();
-        let (with, without) = (scene.context(true), scene.context(false));
+        let scene = crate::test_scene::BoxWarp::new();
+        let (with, without) = (scene.context(true, false), scene.context(false, false));
         assert!(with.temporal_prior().unwrap().prior.as_flat().iter().any(|&x| x != 0.0));
         for (variant, reads_prior) in
             [(Variant::Full, true), (Variant::NoDepth, true), (Variant::NoTemporalPrior, false)]

@@ -133,47 +133,13 @@ impl Infiller for Oracle {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::geometry::{
-        relative_pose, warp_forward, DepthMap, FrameView, HoleMask, Image, Intrinsics, Pixel, RgbImage, Warp,
-        WorldToCamera,
-    };
-    use crate::test_scene::{self, assert_all_finite, labelled, RED};
+    use crate::geometry::{DepthMap, FrameView, HoleMask, Image, Intrinsics, Pixel, RgbImage, Warp, WorldToCamera};
+    use crate::test_scene::{self, assert_all_finite, labelled, BoxWarp, RED};
 
-    /// Frame n at camera x = 0.2 warped to the target at x = 0.3, with the target's truth.
-    struct BoxScene {
-        k: Intrinsics,
-        last: (RgbImage, DepthMap, WorldToCamera),
-        target: (RgbImage, DepthMap, WorldToCamera),
-        warped: Warp,
-    }
-
-    impl BoxScene {
-        fn new() -> Self {
-            let k = test_scene::intrinsics();
-            let last = test_scene::render(0.2);
-            let target = test_scene::render(0.3);
-            let warped = warp_forward(&last.0, &last.1, &k, &relative_pose(&last.2, &target.2));
-            Self { k, last, target, warped }
-        }
-
-        fn context(&self, with_truth: bool) -> InfillContext<'_> {
-            InfillContext {
-                intrinsics: &self.k,
-                last: FrameView { image: &self.last.0, depth: &self.last.1, pose: &self.last.2 },
-                before_last: None,
-                target_pose: &self.target.2,
-                warped: &self.warped,
-                ground_truth: with_truth.then_some(&self.target.0),
-            }
-        }
-
-        fn disocclusions(&self) -> Vec<Pixel> {
-            let (w, h) = (self.warped.image.width(), self.warped.image.height());
-            (0..h)
-                .flat_map(|v| (0..w).map(move |u| (u, v)))
-                .filter(|&(u, v)| self.warped.holes.is_disocclusion(u, v))
-                .collect()
-        }
+    /// The disocclusion pixels of `warp`, row by row.
+    fn disocclusions(warp: &Warp) -> Vec<Pixel> {
+        let (w, h) = (warp.image.width(), warp.image.height());
+        (0..h).flat_map(|v| (0..w).map(move |u| (u, v))).filter(|&(u, v)| warp.holes.is_disocclusion(u, v)).collect()
     }
 
     fn run(name: &str, ctx: &InfillContext<'_>) -> Infilled {
@@ -182,10 +148,10 @@ mod tests {
 
     #[test]
     fn classical_methods_on_a_box_scene() {
-        let scene = BoxScene::new();
-        let holes = scene.disocclusions();
+        let scene = BoxWarp::new();
+        let holes = disocclusions(&scene.warped);
         assert!(holes.len() > 50, "the scene should open a disocclusion, got {}", holes.len());
-        let ctx = scene.context(true);
+        let ctx = scene.context(false, true);
         let truth = &scene.target.0;
 
         let copy = run("copy", &ctx);
@@ -278,12 +244,12 @@ mod tests {
 
     #[test]
     fn oracle_needs_the_ground_truth_and_says_so() {
-        let scene = BoxScene::new();
+        let scene = BoxWarp::new();
         let oracle = classical_infiller("oracle").unwrap();
         assert!(oracle.uses_ground_truth());
-        assert!(matches!(oracle.infill(&scene.context(false)), Err(InfillError::NeedsGroundTruth("oracle"))));
+        assert!(matches!(oracle.infill(&scene.context(false, false)), Err(InfillError::NeedsGroundTruth("oracle"))));
         let small = Image::filled(3, 3, RED);
-        let ctx = InfillContext { ground_truth: Some(&small), ..scene.context(false) };
+        let ctx = InfillContext { ground_truth: Some(&small), ..scene.context(false, false) };
         assert!(matches!(oracle.infill(&ctx), Err(InfillError::SizeMismatch { what: "the ground truth", .. })));
     }
 

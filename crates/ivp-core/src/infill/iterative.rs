@@ -469,9 +469,9 @@ mod tests {
 
     use super::*;
     use crate::geometry::image::is_valid_depth;
-    use crate::geometry::{relative_pose, sample_known, warp_forward, Direction, Image, Warp, WorldToCamera};
+    use crate::geometry::{sample_known, Direction, Image, Warp};
     use crate::infill::rules::{fill_disocclusions_background, fill_new_regions};
-    use crate::test_scene;
+    use crate::test_scene::{self, BoxWarp};
 
     /// A predictor made of a closure.
     struct FnPredictor<F>(F);
@@ -593,26 +593,9 @@ mod tests {
         [u as f32 / 128.0, v as f32 / 64.0, 0.5]
     }
 
-    /// The box scene of `test_scene`: frame n at camera x = 0.2 warped to the target at x = 0.3.
-    /// The camera moves right, so the wall is uncovered on the right of the box.
-    struct BoxScene {
-        target: (RgbImage, DepthMap, WorldToCamera),
-        warped: Warp,
-    }
-
-    impl BoxScene {
-        fn new() -> Self {
-            let k = test_scene::intrinsics();
-            let last = test_scene::render(0.2);
-            let target = test_scene::render(0.3);
-            let warped = warp_forward(&last.0, &last.1, &k, &relative_pose(&last.2, &target.2));
-            Self { target, warped }
-        }
-    }
-
     #[test]
     fn background_vectors_reproduce_fill_on_the_box_scene() {
-        let scene = BoxScene::new();
+        let scene = BoxWarp::new();
         let warp = &scene.warped;
         let holes = disocclusions(warp);
         assert!(holes.len() > 50, "the scene should open a disocclusion, got {}", holes.len());
@@ -641,7 +624,7 @@ mod tests {
 
     #[test]
     fn foreground_vectors_are_rejected_until_the_last_iteration() {
-        let scene = BoxScene::new();
+        let scene = BoxWarp::new();
         let warp = &scene.warped;
         let holes = disocclusions(warp);
         // The box is on the left of the uncovered wall.
