@@ -233,7 +233,7 @@ fn check_images(name: &str, prediction: &Tensor, truth: &Tensor, mask: &Tensor) 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::nn::ops::test_util::{flat, random};
+    use crate::nn::ops::test_util::{central_differences, flat, random, tensor};
     use candle_core::{Device, Var};
 
     /// Deterministic values in [0, 1).
@@ -244,10 +244,6 @@ mod tests {
     /// A deterministic 0/1 mask (B, 1, H, W), 1 with probability about `p`.
     fn holes(b: usize, h: usize, w: usize, p: f64, seed: u64) -> Tensor {
         uniform(&[b, 1, h, w], seed).lt(p).unwrap().to_dtype(DType::F32).unwrap()
-    }
-
-    fn tensor(v: Vec<f32>, shape: &[usize]) -> Tensor {
-        Tensor::from_vec(v, shape, &Device::Cpu).unwrap()
     }
 
     fn scalar(t: &Tensor) -> f32 {
@@ -548,19 +544,10 @@ mod tests {
             |p: &Tensor, v: &Tensor| -> f64 { scalar(&ivp_loss(p, &t, &m, Some(v), &weights).unwrap().total) as f64 };
         let eps = 1e-2f32;
         let check = |x: &Tensor, analytic: &Tensor, loss: &dyn Fn(&Tensor) -> f64, name: &str| {
-            let (base, analytic) = (flat(x), flat(analytic));
-            let (mut err, mut norm) = (0f64, 0f64);
-            for (i, &a) in analytic.iter().enumerate() {
-                let at = |d: f32| {
-                    let mut v = base.clone();
-                    v[i] += d;
-                    loss(&tensor(v, x.dims()))
-                };
-                let fd = (at(eps) - at(-eps)) / (2.0 * eps as f64);
-                err += (fd - a as f64).powi(2);
-                norm += (a as f64).powi(2);
-            }
-            let (err, norm) = (err.sqrt(), norm.sqrt());
+            let differences = central_differences(&flat(x), eps, |v| loss(&tensor(v, x.dims())));
+            let analytic = flat(analytic);
+            let err = analytic.iter().zip(&differences).map(|(&a, fd)| (fd - a as f64).powi(2)).sum::<f64>().sqrt();
+            let norm = analytic.iter().map(|&a| (a as f64).powi(2)).sum::<f64>().sqrt();
             println!("{name}: relative error {:.2e} (gradient norm {norm:.3e})", err / norm);
             assert!(norm > 1e-3, "{name}: gradient norm {norm}");
             assert!(err <= 1e-2 * norm, "{name}: error {err} for a gradient of norm {norm}");

@@ -938,23 +938,12 @@ mod tests {
                 let grads = our_grads(&x, &wt, &b, &r, stride, tile);
                 for (arg, grad) in grads.iter().enumerate() {
                     let args = [x.as_tensor(), wt.as_tensor(), b.as_tensor()];
-                    let base = flat(args[arg]);
-                    let analytic = flat(grad);
-                    for (i, &a) in analytic.iter().enumerate() {
-                        let at = |d: f32| {
-                            let mut v = base.clone();
-                            v[i] += d;
-                            let t = Tensor::from_vec(v, args[arg].dims(), &Device::Cpu).unwrap();
-                            let mut a = args.map(|t| t.clone());
-                            a[arg] = t;
-                            loss(&a[0], &a[1], &a[2])
-                        };
-                        let fd = (at(eps) - at(-eps)) / (2.0 * eps as f64);
-                        assert!(
-                            (fd - a as f64).abs() < 1e-3 * (1.0 + fd.abs()),
-                            "k{k} s{stride} arg {arg} [{i}]: {a} vs {fd}"
-                        );
-                    }
+                    let differences = central_differences(&flat(args[arg]), eps, |v| {
+                        let mut a = args.map(|t| t.clone());
+                        a[arg] = tensor(v, args[arg].dims());
+                        loss(&a[0], &a[1], &a[2])
+                    });
+                    assert_matches_differences(&flat(grad), &differences, 1e-3, &format!("k{k} s{stride} arg {arg}"));
                 }
             }
         }

@@ -210,20 +210,11 @@ mod tests {
             // The loss is linear in x: central differences are exact up to rounding (f64 sums).
             let rv = flat(&r);
             let loss = |v: Vec<f32>| -> f64 {
-                let y = flat(&gaussian_blur(&Tensor::from_vec(v, &shape[..], &Device::Cpu).unwrap()).unwrap());
+                let y = flat(&gaussian_blur(&tensor(v, &shape)).unwrap());
                 y.iter().zip(&rv).map(|(a, b)| *a as f64 * *b as f64).sum()
             };
-            let base = flat(&x);
-            let eps = 0.5f32;
-            for (i, &a) in analytic.iter().enumerate() {
-                let at = |d: f32| {
-                    let mut v = base.clone();
-                    v[i] += d;
-                    loss(v)
-                };
-                let fd = (at(eps) - at(-eps)) / (2.0 * eps as f64);
-                assert!((fd - a as f64).abs() < 1e-4 * (1.0 + fd.abs()), "{shape:?} [{i}]: {a} vs {fd}");
-            }
+            let differences = central_differences(&flat(&x), 0.5, loss);
+            assert_matches_differences(&analytic, &differences, 1e-4, &format!("{shape:?}"));
         }
     }
 

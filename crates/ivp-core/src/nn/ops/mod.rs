@@ -46,4 +46,26 @@ pub(crate) mod test_util {
     pub fn flat(t: &Tensor) -> Vec<f32> {
         t.flatten_all().unwrap().to_vec1().unwrap()
     }
+
+    pub fn tensor(v: Vec<f32>, shape: &[usize]) -> Tensor {
+        Tensor::from_vec(v, shape, &Device::Cpu).unwrap()
+    }
+
+    /// The central differences of `loss` at `base` along each coordinate, with step `eps`.
+    pub fn central_differences(base: &[f32], eps: f32, loss: impl Fn(Vec<f32>) -> f64) -> Vec<f64> {
+        let at = |i: usize, d: f32| {
+            let mut v = base.to_vec();
+            v[i] += d;
+            loss(v)
+        };
+        (0..base.len()).map(|i| (at(i, eps) - at(i, -eps)) / (2.0 * eps as f64)).collect()
+    }
+
+    /// Asserts `|fd - analytic| < tol (1 + |fd|)` at every coordinate; `what` names the case.
+    pub fn assert_matches_differences(analytic: &[f32], differences: &[f64], tol: f64, what: &str) {
+        assert_eq!(analytic.len(), differences.len(), "{what}");
+        for (i, (&a, &fd)) in analytic.iter().zip(differences).enumerate() {
+            assert!((fd - a as f64).abs() < tol * (1.0 + fd.abs()), "{what} [{i}]: {a} vs {fd}");
+        }
+    }
 }

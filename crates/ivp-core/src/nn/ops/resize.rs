@@ -324,11 +324,7 @@ impl CustomOp1 for BilinearGrad {
 mod tests {
     use super::*;
     use crate::nn::ops::test_util::*;
-    use candle_core::{Device, Var};
-
-    fn tensor(v: Vec<f32>, shape: &[usize]) -> Tensor {
-        Tensor::from_vec(v, shape, &Device::Cpu).unwrap()
-    }
+    use candle_core::Var;
 
     #[test]
     fn upsample_concat_equals_upsample_then_cat_forward_and_backward() {
@@ -422,18 +418,11 @@ mod tests {
         let r = random(y.dims(), seed + 1);
         let rv = flat(&r);
         let analytic = flat((&y * &r).unwrap().sum_all().unwrap().backward().unwrap().get(&x).unwrap());
-        let loss = |x: &Tensor| -> f64 { flat(&f(x)).iter().zip(&rv).map(|(a, b)| *a as f64 * *b as f64).sum() };
-        let base = flat(&x);
-        let eps = 0.5f32;
-        for (i, &a) in analytic.iter().enumerate() {
-            let at = |d: f32| {
-                let mut v = base.clone();
-                v[i] += d;
-                loss(&tensor(v, shape))
-            };
-            let fd = (at(eps) - at(-eps)) / (2.0 * eps as f64);
-            assert!((fd - a as f64).abs() < 1e-3 * (1.0 + fd.abs()), "{shape:?} [{i}]: {a} vs {fd}");
-        }
+        let loss = |v: Vec<f32>| -> f64 {
+            flat(&f(&tensor(v, shape))).iter().zip(&rv).map(|(a, b)| *a as f64 * *b as f64).sum()
+        };
+        let differences = central_differences(&flat(&x), 0.5, loss);
+        assert_matches_differences(&analytic, &differences, 1e-3, &format!("{shape:?}"));
     }
 
     #[test]

@@ -260,8 +260,8 @@ impl CustomOp3 for SamplerVectorGrad {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::nn::ops::test_util::flat;
-    use candle_core::{Device, Var};
+    use crate::nn::ops::test_util::{assert_matches_differences, central_differences, flat, tensor};
+    use candle_core::Var;
 
     /// Deterministic values in [-1, 1) (candle cannot seed its CPU generator).
     fn random_vec(n: usize, seed: u64) -> Vec<f32> {
@@ -274,10 +274,6 @@ mod tests {
                 (s >> 40) as f32 / (1u64 << 23) as f32 - 1.0
             })
             .collect()
-    }
-
-    fn tensor(v: Vec<f32>, shape: &[usize]) -> Tensor {
-        Tensor::from_vec(v, shape, &Device::Cpu).unwrap()
     }
 
     /// A 1 x 1 x 3 x 4 image with values 0..12 (row-major) and a constant offset (a, b).
@@ -378,19 +374,13 @@ mod tests {
             // Linear in the image (exact differences); smooth in the vectors between integers.
             for (arg, eps) in [(0, 0.5f32), (1, 1e-2)] {
                 let args = [img.as_tensor().clone(), vec.as_tensor().clone()];
-                let base = flat(&args[arg]);
                 let analytic = flat(g.get(&args[arg]).unwrap());
-                for (j, &a) in analytic.iter().enumerate() {
-                    let at = |d: f32| {
-                        let mut v = base.clone();
-                        v[j] += d;
-                        let mut a = args.clone();
-                        a[arg] = tensor(v, args[arg].dims());
-                        loss(&a[0], &a[1])
-                    };
-                    let fd = (at(eps) - at(-eps)) / (2.0 * eps as f64);
-                    assert!((fd - a as f64).abs() < 2e-3 * (1.0 + fd.abs()), "case {i} arg {arg} [{j}]: {a} vs {fd}");
-                }
+                let differences = central_differences(&flat(&args[arg]), eps, |v| {
+                    let mut a = args.clone();
+                    a[arg] = tensor(v, args[arg].dims());
+                    loss(&a[0], &a[1])
+                });
+                assert_matches_differences(&analytic, &differences, 2e-3, &format!("case {i} arg {arg}"));
             }
         }
     }
