@@ -312,6 +312,73 @@ fn a_run_minimises_the_mse_term_times_its_weight_from_its_step() {
     }
 }
 
+/// The rows of metrics.csv without the elapsed time (the last column), which no two runs share.
+fn logged_losses(run: &Path) -> Vec<String> {
+    let log = std::fs::read_to_string(run.join("metrics.csv")).unwrap();
+    log.lines().skip(1).map(|line| line.rsplit_once(',').unwrap().0.to_string()).collect()
+}
+
+#[test]
+fn a_branch_continues_the_run_it_starts_from_with_its_own_configuration() {
+    let dir = tempfile::tempdir().unwrap();
+    let [whole, same, heavier, other_net] = ["whole", "same", "heavier", "other-net"].map(|n| dir.path().join(n));
+    // Models are means of 3 checkpoints 2 steps apart, chosen by a real clip from step 4 on: the
+    // branch needs the source's checkpoint of step 2 for the windows that end at steps 4 and 6.
+    let config = TrainConfig {
+        validation_data: Some(ivp_tests::blender_dev().join("clip_002")),
+        validation_targets: vec![6, 8, 10],
+        validation_clips: 0,
+        validate_every: 2,
+        checkpoint_every: 2,
+        average_checkpoints: 3,
+        select_from: 0.5,
+        ..tiny(8)
+    };
+    let source = train(&config, &whole, &quiet()).unwrap();
+    let at_4 = whole.join("checkpoints/step_00000004.safetensors");
+    let branch = |config: &TrainConfig, out: &Path| {
+        train(config, out, &RunOptions { branch_from: Some(at_4.clone()), ..quiet() })
+    };
+
+    // With the same configuration, the branch is the run itself: parameters, log and model.
+    let summary = branch(&config, &same).unwrap();
+    assert_eq!((summary.steps_done, summary.steps_run), (8, 4));
+    assert_eq!(summary.model_steps, source.model_steps);
+    assert_eq!(parameters(&same.join("model.safetensors")), parameters(&whole.join("model.safetensors")));
+    assert_eq!(logged_losses(&same), logged_losses(&whole));
+
+    // Another MSE weight from step 4 on: the log up to step 4 is the source's, then the runs part.
+    let heavier_config = TrainConfig { mse_weight: 10.0, mse_weight_from: 0.5, ..config.clone() };
+    branch(&heavier_config, &heavier).unwrap();
+    let (source_rows, branch_rows) = (logged_losses(&whole), logged_losses(&heavier));
+    assert_eq!(branch_rows[..2], source_rows[..2], "rows of steps 2 and 4");
+    assert_ne!(branch_rows[2..], source_rows[2..]);
+    assert_ne!(parameters(&heavier.join("model.safetensors")), parameters(&whole.join("model.safetensors")));
+    // Its checkpoint of step 4 records the branch's configuration, so that --resume continues it.
+    let saved = load_checkpoint(&heavier.join("checkpoints/step_00000004.safetensors")).unwrap();
+    let saved: TrainConfig = serde_json::from_str(&saved.train_config).unwrap();
+    assert_eq!(saved.mse_weight, 10.0);
+    assert_eq!(heavier_config.changes_from(&config).unwrap(), ["mse_weight: 5.0 -> 10.0"]);
+
+    // A branch needs an empty folder, the same network and a step before its end.
+    let err = branch(&config, &same).unwrap_err();
+    assert!(format!("{err:#}").contains("--resume"), "{err:#}");
+    let err = branch(&TrainConfig { width_mult: 0.25, ..config.clone() }, &other_net).unwrap_err();
+    assert!(format!("{err:#}").contains("another network"), "{err:#}");
+    let kept_from_4 = dir.path().join("kept-from-4");
+    std::fs::create_dir_all(kept_from_4.join("checkpoints")).unwrap();
+    std::fs::copy(&at_4, kept_from_4.join("checkpoints/step_00000004.safetensors")).unwrap();
+    let options =
+        RunOptions { branch_from: Some(kept_from_4.join("checkpoints/step_00000004.safetensors")), ..quiet() };
+    let err = train(&config, &other_net, &options).unwrap_err();
+    assert!(format!("{err:#}").contains("checkpoints of steps [2]"), "{err:#}");
+    let err = branch(&TrainConfig { steps: 4, ..config.clone() }, &other_net).unwrap_err();
+    assert!(format!("{err:#}").contains("must start before the run's last step"), "{err:#}");
+    let both = RunOptions { resume: true, branch_from: Some(at_4.clone()), ..quiet() };
+    let err = train(&config, &other_net, &both).unwrap_err();
+    assert!(format!("{err:#}").contains("not both"), "{err:#}");
+}
+
 /// Reads metrics.csv's real-clip D-MSE (column val_real_d_mse) by step, where a row has one.
 fn real_clip_scores(run: &Path) -> Vec<(u64, f64)> {
     let log = std::fs::read_to_string(run.join("metrics.csv")).unwrap();

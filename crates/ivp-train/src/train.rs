@@ -31,7 +31,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::checkpoint::{
     check_depth_head_mult, check_width_mult, export_model, load_checkpoint, load_model, mean_of, network_from,
-    restore_parameters, save_checkpoint,
+    restore_parameters, save_checkpoint, Checkpoint,
 };
 use crate::distributed::{
     any_rank, batch_part, broadcast_from_root, f32_bytes, share_training_state, sum_gradients, sum_over_ranks,
@@ -370,6 +370,20 @@ impl TrainConfig {
         saved_but_recording == *self
     }
 
+    /// The fields in which this configuration differs from `other`, as `name: other -> this`.
+    pub fn changes_from(&self, other: &TrainConfig) -> Result<Vec<String>> {
+        let (this, other) = (serde_json::to_value(self)?, serde_json::to_value(other)?);
+        let (Some(this), Some(other)) = (this.as_object(), other.as_object()) else {
+            bail!("a training configuration serialises as a map");
+        };
+        let null = serde_json::Value::Null;
+        Ok(this
+            .iter()
+            .filter(|(name, value)| other.get(*name).unwrap_or(&null) != *value)
+            .map(|(name, value)| format!("{name}: {} -> {value}", other.get(name).unwrap_or(&null)))
+            .collect())
+    }
+
     /// The first step whose checkpoint may become the model by its validation on real clips
     /// (`select_from`), or `None` when the model is the last step's.
     pub fn selection_start(&self) -> Option<u64> {
@@ -457,11 +471,14 @@ impl TrainConfig {
     }
 }
 
-/// How a run is watched and stopped; nothing here changes its results.
+/// How a run starts, and how it is watched and stopped (which changes nothing in its results).
 #[derive(Clone, Debug, Default)]
 pub struct RunOptions {
     /// Continue from the last checkpoint of the run folder.
     pub resume: bool,
+    /// Start a new run from this checkpoint of another run: its parameters, Adam's state and
+    /// step, with this run's configuration from that step on (a branch of the other run).
+    pub branch_from: Option<PathBuf>,
     pub progress: bool,
     /// Set (by Ctrl-C) to stop after the current step with a checkpoint.
     pub stop: Option<Arc<AtomicBool>>,
@@ -512,7 +529,7 @@ pub fn train_on(
     let mut optimizer =
         Adam::new(named_parameters(&varmap), AdamConfig { lr: config.lr, max_grad_norm, ..AdamConfig::default() })?;
     let mut run = match is_root {
-        true => Some(open_run_folder(config, run_dir, options.resume, &varmap, &mut optimizer)?),
+        true => Some(open_run_folder(config, run_dir, options, &varmap, &mut optimizer)?),
         false => None,
     };
     let mut selection = Selection::new(config);
@@ -708,6 +725,12 @@ fn checkpoint_path(checkpoints: &Path, step: u64) -> PathBuf {
     checkpoints.join(format!("step_{step:08}.safetensors"))
 }
 
+/// The step of a checkpoint file named as [`checkpoint_path`] names them.
+fn checkpoint_step(path: &Path) -> Option<u64> {
+    let name = path.file_name()?.to_str()?;
+    name.strip_prefix("step_")?.strip_suffix(".safetensors")?.parse().ok()
+}
+
 /// The steps of the window that ends at checkpointed step `step`: the `average_checkpoints - 1`
 /// checkpointed steps before it, `checkpoint_every` apart, then `step` (fewer at the start of a
 /// run). A checkpoint written off that grid, when a run is stopped, is in no window.
@@ -813,18 +836,21 @@ struct RunFolder {
     log: MetricsLog,
 }
 
-/// Starts the run in `run_dir`, or (`resume`) restores the parameters and Adam's state of its last
-/// checkpoint, which must be of the same configuration but for `steps`.
+/// Starts the run in `run_dir` (from `options.branch_from` when given), or (`options.resume`)
+/// restores the parameters and Adam's state of its last checkpoint, which must be of the same
+/// configuration but for what a run only records ([`TrainConfig::may_continue`]).
 fn open_run_folder(
     config: &TrainConfig,
     run_dir: &Path,
-    resume: bool,
+    options: &RunOptions,
     varmap: &VarMap,
     optimizer: &mut Adam,
 ) -> Result<RunFolder> {
     let checkpoints = run_dir.join("checkpoints");
     std::fs::create_dir_all(&checkpoints).with_context(|| format!("cannot create {}", checkpoints.display()))?;
     let mut run = RunFolder { first_step: 0, log: MetricsLog::new(run_dir.join("metrics.csv")) };
+    let resume = options.resume;
+    ensure!(!(resume && options.branch_from.is_some()), "a run either resumes or branches from another run, not both");
     match (latest_checkpoint(&checkpoints)?, resume) {
         (Some(path), true) => {
             let ckpt = load_checkpoint(&path)?;
@@ -848,11 +874,110 @@ fn open_run_folder(
             run_dir.display(),
             path.display()
         ),
-        (None, false) => {}
+        (None, false) => {
+            if let Some(source) = &options.branch_from {
+                run = branch_from(config, source, run_dir, varmap, optimizer)?;
+            }
+        }
     }
     let config_text = toml::to_string(config)?;
     ivp_data::write_atomically(&run_dir.join("config.toml"), config_text.as_bytes())?;
     Ok(run)
+}
+
+/// Starts the run in `run_dir` at `source`, a checkpoint of another run: its parameters, Adam's
+/// state and step. The source's checkpoints that the windows around that step average and its
+/// `metrics.csv` up to the step come along, so that the run reads as the source until then; the
+/// source's checkpoint is written again with this configuration, so that `--resume` continues the
+/// branch. What the configuration changes is logged, not checked: a branch may change anything
+/// but the network.
+fn branch_from(
+    config: &TrainConfig,
+    source: &Path,
+    run_dir: &Path,
+    varmap: &VarMap,
+    optimizer: &mut Adam,
+) -> Result<RunFolder> {
+    let ckpt = load_checkpoint(source)?;
+    ensure!(
+        ckpt.step < config.steps,
+        "{}: a branch must start before the run's last step ({}), this checkpoint is of step {}",
+        source.display(),
+        config.steps,
+        ckpt.step
+    );
+    let model_config = config.model()?;
+    ensure!(
+        ckpt.model == model_config,
+        "{}: the checkpoint is of another network ({}; this run trains {model_config})",
+        source.display(),
+        ckpt.model
+    );
+    restore_parameters(source, varmap, &ckpt.params)?;
+    optimizer.load_state(&ckpt.adam, ckpt.adam_steps)?;
+    tracing::info!("{}", describe_branch(config, source, &ckpt)?);
+
+    let checkpoints = run_dir.join("checkpoints");
+    let source_checkpoints = source.parent().unwrap_or(Path::new("."));
+    // The windows that end after the branch's start reach back into the source's checkpoints.
+    let every = config.checkpoint_every;
+    let window_ends = (1..=config.average_checkpoints as u64).map(|k| (ckpt.step / every + k) * every);
+    let mut needed: Vec<u64> =
+        window_ends.flat_map(|end| window_steps(config, end)).filter(|&s| s < ckpt.step).collect();
+    needed.sort_unstable();
+    needed.dedup();
+    let missing: Vec<u64> = needed.into_iter().filter(|&s| !checkpoint_path(source_checkpoints, s).is_file()).collect();
+    ensure!(
+        missing.is_empty(),
+        "{}: the means of {} checkpoints after step {} need the source's checkpoints of steps {missing:?}, \
+         which it no longer keeps (branch from a run that keeps more: keep_checkpoints)",
+        source.display(),
+        config.average_checkpoints,
+        ckpt.step
+    );
+    let earliest = ckpt.step.saturating_sub((config.average_checkpoints as u64).saturating_sub(1) * every);
+    for path in checkpoint_files(source_checkpoints)? {
+        let step = checkpoint_step(&path);
+        if step.is_some_and(|step| (earliest..ckpt.step).contains(&step)) {
+            let bytes = std::fs::read(&path).with_context(|| format!("cannot read {}", path.display()))?;
+            ivp_data::write_atomically(&checkpoints.join(path.file_name().unwrap_or_default()), &bytes)?;
+        }
+    }
+    let config_json = serde_json::to_string(config)?;
+    save_checkpoint(
+        &checkpoint_path(&checkpoints, ckpt.step),
+        varmap,
+        &model_config,
+        optimizer,
+        ckpt.step,
+        &config_json,
+    )?;
+
+    let source_log = source_checkpoints.parent().unwrap_or(Path::new(".")).join("metrics.csv");
+    let rows = match source_log.is_file() {
+        true => MetricsLog::resume(source_log, ckpt.step)?.rows().to_vec(),
+        false => {
+            tracing::warn!(
+                "{}: no metrics.csv beside the checkpoints; the log starts at step {}",
+                source.display(),
+                ckpt.step
+            );
+            Vec::new()
+        }
+    };
+    let mut log = MetricsLog::new(run_dir.join("metrics.csv"));
+    rows.into_iter().for_each(|row| log.push(row));
+    Ok(RunFolder { first_step: ckpt.step, log })
+}
+
+/// "branching from SOURCE at step S; changed: name: before -> after, ...", from the checkpoint
+/// `source` (loaded as `ckpt`).
+pub fn describe_branch(config: &TrainConfig, source: &Path, ckpt: &Checkpoint) -> Result<String> {
+    let saved: TrainConfig = serde_json::from_str(&ckpt.train_config)
+        .with_context(|| format!("{}: unreadable training configuration", source.display()))?;
+    let changes = config.changes_from(&saved)?;
+    let changes = if changes.is_empty() { "nothing".to_string() } else { changes.join(", ") };
+    Ok(format!("branching from {} at step {}; changed: {changes}", source.display(), ckpt.step))
 }
 
 /// `name` must be 0 or a positive, finite number (a weight, or a bound where 0 means none).

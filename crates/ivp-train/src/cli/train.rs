@@ -7,12 +7,12 @@ use std::sync::Arc;
 use anyhow::{Context, Result};
 use clap::Args;
 
-use crate::checkpoint::export_model;
+use crate::checkpoint::{export_model, load_checkpoint};
 use crate::demo::{demo_config, demo_methods, evaluation_data, model_path, plan_training, DemoTraining};
 use crate::distributed::{broadcast_from_root, ProcessGroup, SingleProcess};
 use crate::eval::{evaluate, format_table, DEFAULT_TARGETS};
 use crate::onnx::{export_onnx, OPSET};
-use crate::train::{describe_model_steps, train, train_on, RunOptions, TrainConfig, TrainOverrides};
+use crate::train::{describe_branch, describe_model_steps, train, train_on, RunOptions, TrainConfig, TrainOverrides};
 
 #[derive(Args)]
 pub struct TrainArgs {
@@ -37,6 +37,11 @@ pub struct TrainArgs {
     /// Stop after this step with a checkpoint, as Ctrl-C does; continue later with --resume.
     #[arg(long)]
     stop_at: Option<u64>,
+    /// Start this run from a checkpoint of another run (RUN/checkpoints/step_*.safetensors): its
+    /// parameters, optimiser state, step and metrics.csv so far, then this configuration (e.g.
+    /// other loss weights for the rest of the run). The network must be the same.
+    #[arg(long, value_name = "CHECKPOINT", conflicts_with = "resume")]
+    branch_from: Option<PathBuf>,
 }
 
 #[derive(Args)]
@@ -97,7 +102,13 @@ fn run_train_on(group: &dyn ProcessGroup, args: TrainArgs, progress: bool) -> Re
     let config: TrainConfig = serde_json::from_slice(&config_json).context("the configuration from rank 0")?;
     let stop = stop_on_ctrl_c(is_root)?;
     if !is_root {
-        let options = RunOptions { resume: args.resume, progress: false, stop: Some(stop), stop_at: args.stop_at };
+        let options = RunOptions {
+            resume: args.resume,
+            branch_from: args.branch_from,
+            progress: false,
+            stop: Some(stop),
+            stop_at: args.stop_at,
+        };
         train_on(group, &config, &args.out, &options)?;
         return Ok(());
     }
@@ -115,7 +126,16 @@ fn run_train_on(group: &dyn ProcessGroup, args: TrainArgs, progress: bool) -> Re
         config.crop,
         args.out.display()
     );
-    let options = RunOptions { resume: args.resume, progress, stop: Some(stop), stop_at: args.stop_at };
+    if let Some(source) = &args.branch_from {
+        println!("{}", describe_branch(&config, source, &load_checkpoint(source)?)?);
+    }
+    let options = RunOptions {
+        resume: args.resume,
+        branch_from: args.branch_from,
+        progress,
+        stop: Some(stop),
+        stop_at: args.stop_at,
+    };
     let summary = train_on(group, &config, &args.out, &options)?;
     let minutes = summary.elapsed.as_secs_f64() / 60.0;
     if group.size() > 1 {
