@@ -33,6 +33,19 @@ fn tiny(steps: u64) -> TrainConfig {
     }
 }
 
+/// `tiny(8)` validated every 2 steps on targets 6, 8 and 10 of a Blender clip, with a checkpoint
+/// as often: what a choice of checkpoint by real clips needs.
+fn validated_on_a_real_clip() -> TrainConfig {
+    TrainConfig {
+        validation_data: Some(ivp_tests::blender_dev().join("clip_002")),
+        validation_targets: vec![6, 8, 10],
+        validation_clips: 0,
+        validate_every: 2,
+        checkpoint_every: 2,
+        ..tiny(8)
+    }
+}
+
 fn quiet() -> RunOptions {
     RunOptions::default()
 }
@@ -240,16 +253,11 @@ fn a_run_validated_on_real_clips_keeps_the_checkpoint_they_score_best() {
     let dir = tempfile::tempdir().unwrap();
     let (whole, parts) = (dir.path().join("whole"), dir.path().join("parts"));
     let config = TrainConfig {
-        validation_data: Some(ivp_tests::blender_dev().join("clip_002")),
-        validation_targets: vec![6, 8, 10],
-        validate_every: 2,
-        checkpoint_every: 2,
         keep_checkpoints: 1,
         select_from: 0.25,
-        validation_clips: 0,
         // Unclipped, this seed's tiny run is not at its best at its last step (asserted below).
         max_grad_norm: 0.0,
-        ..tiny(8)
+        ..validated_on_a_real_clip()
     };
     let summary = train(&config, &whole, &quiet()).unwrap();
 
@@ -324,16 +332,7 @@ fn a_branch_continues_the_run_it_starts_from_with_its_own_configuration() {
     let [whole, same, heavier, other_net] = ["whole", "same", "heavier", "other-net"].map(|n| dir.path().join(n));
     // Models are means of 3 checkpoints 2 steps apart, chosen by a real clip from step 4 on: the
     // branch needs the source's checkpoint of step 2 for the windows that end at steps 4 and 6.
-    let config = TrainConfig {
-        validation_data: Some(ivp_tests::blender_dev().join("clip_002")),
-        validation_targets: vec![6, 8, 10],
-        validation_clips: 0,
-        validate_every: 2,
-        checkpoint_every: 2,
-        average_checkpoints: 3,
-        select_from: 0.5,
-        ..tiny(8)
-    };
+    let config = TrainConfig { average_checkpoints: 3, select_from: 0.5, ..validated_on_a_real_clip() };
     let source = train(&config, &whole, &quiet()).unwrap();
     let at_4 = whole.join("checkpoints/step_00000004.safetensors");
     let branch = |config: &TrainConfig, out: &Path| {
@@ -396,19 +395,14 @@ fn real_clip_scores(run: &Path) -> Vec<(u64, f64)> {
 fn a_run_that_averages_windows_keeps_the_window_real_clips_score_best() {
     let dir = tempfile::tempdir().unwrap();
     let (whole, parts) = (dir.path().join("whole"), dir.path().join("parts"));
-    let clip = ivp_tests::blender_dev().join("clip_002");
     let config = TrainConfig {
-        validation_data: Some(clip.clone()),
-        validation_targets: vec![6, 8, 10],
-        validate_every: 2,
-        checkpoint_every: 2,
         keep_checkpoints: 2,
         average_checkpoints: 2,
         select_from: 0.5,
-        validation_clips: 0,
         max_grad_norm: 0.0,
-        ..tiny(8)
+        ..validated_on_a_real_clip()
     };
+    let clip = config.validation_data.clone().unwrap();
     let summary = train(&config, &whole, &quiet()).unwrap();
     let scored = real_clip_scores(&whole);
     assert_eq!(scored.iter().map(|s| s.0).collect::<Vec<_>>(), [2, 4, 6, 8]);
