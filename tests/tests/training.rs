@@ -72,6 +72,9 @@ fn a_resumed_run_equals_an_uninterrupted_one() {
     let config = tiny(6);
     train(&config, &whole, &quiet()).unwrap();
 
+    // Step 3 is also where the recipe's near columns begin (half of 6 steps): the resumed run
+    // starts its data there as the uninterrupted one switched to them.
+    assert_eq!(config.near_columns_start(), 3);
     let first = train(&config, &parts, &RunOptions { stop_at: Some(3), ..quiet() }).unwrap();
     assert!(first.stopped_early && first.model_path.is_none());
     assert_eq!(first.steps_done, 3);
@@ -318,6 +321,21 @@ fn a_run_minimises_the_mse_term_times_its_weight_from_its_step() {
         let other_weight = if expected == 1.0 { weight } else { 1.0 };
         assert!((total - (other_weight * mse + others)).abs() > 1e-3, "step {step}: both weights fit, mse {mse}");
     }
+}
+
+#[test]
+fn a_run_trains_on_scenes_with_near_columns_from_their_step() {
+    let dir = tempfile::tempdir().unwrap();
+    // Two log rows of two steps each: the scenes without columns in the first, with them in the second.
+    let with_columns = TrainConfig { near_column_probability: 1.0, near_column_probability_from: 0.5, ..tiny(4) };
+    let without = TrainConfig { near_column_probability: 0.0, ..with_columns.clone() };
+    let runs = [("with", &with_columns), ("without", &without)].map(|(name, config)| {
+        train(config, &dir.path().join(name), &quiet()).unwrap();
+        logged_losses(&dir.path().join(name))
+    });
+    assert_eq!(runs[0].len(), 2);
+    assert_eq!(runs[0][0], runs[1][0], "the first half trains on the same scenes");
+    assert_ne!(runs[0][1], runs[1][1], "the second half trains on scenes with columns");
 }
 
 /// The rows of metrics.csv without the elapsed time (the last column), which no two runs share.

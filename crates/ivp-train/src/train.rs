@@ -70,8 +70,17 @@ pub struct TrainConfig {
     /// (`SyntheticSource::with_motion_scales`). Ignored with `data`.
     pub motion_scales: Vec<f64>,
     /// Probability that a near object of a generated scene is a floor-to-ceiling column or pole
-    /// (`SceneParams::near_column_probability`). Ignored with `data`.
+    /// (`SceneParams::near_column_probability`), from the fraction `near_column_probability_from`
+    /// of the run on; before it, none is. Ignored with `data`.
+    /// The recipe's 0.5 from half-way, with `mse_weight` 10 from there: over five seeds 502.6 ±
+    /// 14.7 D-MSE on the 12 real clips at 320x240 and 542.8 ± 14.5 at 1080p, against 534.2 ± 16.2
+    /// and 550.0 ± 14.3 for the recipe before (no columns, weight 5), and 517.3 ± 13.7 and 547.4 ±
+    /// 13.0 with the columns alone (results/recipe-hd). Columns from the start: 2.4% lower at
+    /// 320x240 than without, but 0.9% higher at 1080p with the seeds 15.3% apart there.
     pub near_column_probability: f64,
+    /// The fraction of `steps` from which generated scenes hold near columns; the data of the
+    /// steps before it are the scenes without them, whatever `near_column_probability` says.
+    pub near_column_probability_from: f64,
     /// Probability that a texture of a generated scene is 2 to 4 times finer than the default
     /// patterns (`SceneParams::fine_texture_probability`). Ignored with `data`.
     pub fine_texture_probability: f64,
@@ -82,10 +91,11 @@ pub struct TrainConfig {
     pub guide: GuideChoice,
     /// Weight of the MSE term of the loss, beside 1 for the SSIM term and 0.001 for smoothness
     /// (ALGORITHMS.md §6.4; the paper's: 1), from the fraction `mse_weight_from` of the run on.
-    /// The recipe's 5 from half-way: over five seeds, every seed lower in D-MSE than with the
-    /// paper's weights on real clips at 320x240, and even at 1080p. At 5 or 10 from the start one seed of five and one of
-    /// three copied the foreground into some clips' holes, and at 30 the one run tried did
-    /// everywhere (results/recipe-hd, "The MSE term weighed by 5 from half-way").
+    /// The recipe's 10 from half-way, with the near columns that begin there: see
+    /// `near_column_probability`. 5 from half-way (the recipe before) put every seed of five lower
+    /// in D-MSE than the paper's weights on real clips at 320x240, and even at 1080p. At 5 or 10
+    /// from the start one seed of five and one of three copied the foreground into some clips'
+    /// holes, and at 30 the one run tried did everywhere (results/recipe-hd).
     pub mse_weight: f64,
     /// The fraction of `steps` from which the MSE term takes `mse_weight`; before it, the
     /// paper's 1. The heavier term then refines a model whose vectors the paper's loss has already
@@ -165,11 +175,12 @@ impl Default for TrainConfig {
             crop: 64,
             frame_scales: vec![1],
             motion_scales: vec![1.0],
-            near_column_probability: 0.0,
+            near_column_probability: 0.5,
+            near_column_probability_from: 0.5,
             fine_texture_probability: 0.0,
             guide_steps: 500,
             guide: GuideChoice::Auto,
-            mse_weight: 5.0,
+            mse_weight: 10.0,
             mse_weight_from: 0.5,
             foreground_guard: 0.0,
             lr: 1e-3,
@@ -320,11 +331,12 @@ impl TrainConfig {
         check_probability(self.fine_texture_probability)
             .map_err(|problem| anyhow!("fine_texture_probability {problem}"))?;
         ensure_non_negative("mse_weight", self.mse_weight)?;
-        ensure!(
-            (0.0..=1.0).contains(&self.mse_weight_from),
-            "mse_weight_from must be in [0, 1] (a fraction of steps), got {}",
-            self.mse_weight_from
-        );
+        for (name, fraction) in [
+            ("near_column_probability_from", self.near_column_probability_from),
+            ("mse_weight_from", self.mse_weight_from),
+        ] {
+            ensure!((0.0..=1.0).contains(&fraction), "{name} must be in [0, 1] (a fraction of steps), got {fraction}");
+        }
         ensure_non_negative("foreground_guard", self.foreground_guard)?;
         ensure!(
             self.foreground_guard == 0.0 || (self.variant.predicts_vectors() && self.variant.reads_depth()),
@@ -387,14 +399,24 @@ impl TrainConfig {
     /// The first step whose checkpoint may become the model by its validation on real clips
     /// (`select_from`), or `None` when the model is the last step's.
     pub fn selection_start(&self) -> Option<u64> {
-        let start = (self.select_from * self.steps as f64).ceil() as u64;
+        let start = self.step_at(self.select_from);
         (self.validation_data.is_some() && start < self.steps).then_some(start)
+    }
+
+    /// The first step of the fraction `fraction` of the run on (`ceil(fraction * steps)`).
+    fn step_at(&self, fraction: f64) -> u64 {
+        (fraction * self.steps as f64).ceil() as u64
+    }
+
+    /// The step from which generated scenes hold near columns (`near_column_probability_from`).
+    pub fn near_columns_start(&self) -> u64 {
+        self.step_at(self.near_column_probability_from)
     }
 
     /// The weights of the loss's terms at step `step` (0-based): the paper's, with the MSE term's
     /// `mse_weight` from the fraction `mse_weight_from` of the run on.
     pub fn loss_weights_at(&self, step: u64) -> LossWeights {
-        let from = (self.mse_weight_from * self.steps as f64).ceil() as u64;
+        let from = self.step_at(self.mse_weight_from);
         let mse = if step >= from { self.mse_weight } else { LossWeights::default().mse };
         LossWeights { mse, ..LossWeights::default() }
     }
@@ -447,26 +469,35 @@ impl TrainConfig {
         SampleConfig { seed: self.seed, crop: self.crop, batch_size: self.batch, ..SampleConfig::default() }
     }
 
-    /// Where the clips come from: the dataset, or scenes rendered at twice the crop (at least 320x240).
-    fn source(&self) -> Result<Arc<dyn ClipSource>> {
+    /// The generated scenes of step `step`: rendered at twice the crop (at least 320x240), with
+    /// near columns from `near_columns_start` on.
+    pub fn scene_params_at(&self, step: u64) -> SceneParams {
+        SceneParams {
+            width: (2 * self.crop).max(320),
+            height: (3 * self.crop / 2).max(240),
+            near_column_probability: match step >= self.near_columns_start() {
+                true => self.near_column_probability,
+                false => 0.0,
+            },
+            fine_texture_probability: self.fine_texture_probability,
+            ..SceneParams::default()
+        }
+    }
+
+    /// Whether the clips change at `step`: generated scenes whose near columns begin there.
+    fn scenes_change_at(&self, step: u64) -> bool {
+        self.data.is_none() && self.near_column_probability > 0.0 && step == self.near_columns_start()
+    }
+
+    /// Where the clips of step `step` come from: the dataset, or [`TrainConfig::scene_params_at`].
+    fn source_at(&self, step: u64) -> Result<Arc<dyn ClipSource>> {
         Ok(match &self.data {
             Some(dir) => Arc::new(DatasetSource::open(dir)?),
-            None => {
-                let width = (2 * self.crop).max(320);
-                let height = (3 * self.crop / 2).max(240);
-                let params = SceneParams {
-                    width,
-                    height,
-                    near_column_probability: self.near_column_probability,
-                    fine_texture_probability: self.fine_texture_probability,
-                    ..SceneParams::default()
-                };
-                Arc::new(
-                    SyntheticSource::new(params)
-                        .with_scales(&self.frame_scales)
-                        .with_motion_scales(&self.motion_scales),
-                )
-            }
+            None => Arc::new(
+                SyntheticSource::new(self.scene_params_at(step))
+                    .with_scales(&self.frame_scales)
+                    .with_motion_scales(&self.motion_scales),
+            ),
         })
     }
 }
@@ -540,15 +571,18 @@ pub fn train_on(
     let elapsed_before = run.as_ref().map_or(Duration::ZERO, |r| r.log.last_elapsed());
     let config_json = serde_json::to_string(config)?;
 
-    let source = config.source()?;
     let validation = ValidationSet::new(&config.validation_config())?;
     let fill = validation.score_fill(group)?;
-    let generator = SampleGenerator::new(source, config.sample_config(), Split::Train)?.with_batch_part(batch_part)?;
-    let mut stream = SampleStream::start(
-        Arc::new(generator),
-        first_step,
-        StreamOptions { workers: config.data_workers, ..Default::default() },
-    )?;
+    // The samples of a step are a function of the step and the source alone: a stream started
+    // afresh where the scenes change gives the same batches whether the run went through that step
+    // or resumed there.
+    let stream_from = |step: u64| -> Result<SampleStream> {
+        let generator = SampleGenerator::new(config.source_at(step)?, config.sample_config(), Split::Train)?
+            .with_batch_part(batch_part.clone())?;
+        let options = StreamOptions { workers: config.data_workers, ..Default::default() };
+        Ok(SampleStream::start(Arc::new(generator), step, options)?)
+    };
+    let mut stream = stream_from(first_step)?;
 
     let bar = progress_bar(options.progress && is_root, config.steps, "training");
     bar.set_position(first_step);
@@ -571,6 +605,11 @@ pub fn train_on(
         prune_checkpoints(&checkpoints, config.keep_checkpoints, &protect)
     };
     while step < config.steps {
+        if config.scenes_change_at(step) && step != first_step {
+            let p = config.near_column_probability;
+            tracing::info!(step, "generated scenes from here on: near columns with probability {p}");
+            stream = stream_from(step)?;
+        }
         let batch = stream.next_batch()?;
         debug_assert_eq!(batch.step, step);
         optimizer.set_lr(config.lr_at(step));
@@ -1227,6 +1266,7 @@ mod tests {
             final_lr_fraction: 1.0,
             guide_steps: 0,
             mse_weight: 1.0,
+            near_column_probability: 0.0,
             ..TrainConfig::default()
         };
         assert_eq!(paper, expected);
@@ -1496,6 +1536,30 @@ mod tests {
             match (TrainConfig { mse_weight_from: from, ..config.clone() }).validate() {
                 Ok(()) => assert!(valid, "mse_weight_from {from} accepted"),
                 Err(e) => assert!(!valid && e.to_string().starts_with("mse_weight_from must be"), "{from}: {e}"),
+            }
+        }
+    }
+
+    #[test]
+    fn generated_scenes_hold_near_columns_from_their_fraction_of_the_run_on() {
+        let config = TrainConfig { steps: 25, near_column_probability: 0.7, ..TrainConfig::default() };
+        // From step ceil(0.5 * 25) = 13 on, and nothing else changes.
+        assert_eq!(config.near_columns_start(), 13);
+        let before = config.scene_params_at(12);
+        assert_eq!(before.near_column_probability, 0.0);
+        assert_eq!(config.scene_params_at(13), SceneParams { near_column_probability: 0.7, ..before });
+        assert!(config.scenes_change_at(13) && !config.scenes_change_at(12) && !config.scenes_change_at(14));
+        let from_the_start = TrainConfig { near_column_probability_from: 0.0, ..config.clone() };
+        assert_eq!(from_the_start.scene_params_at(0).near_column_probability, 0.7);
+        // Nothing changes without columns or with a dataset.
+        assert!(!TrainConfig { near_column_probability: 0.0, ..config.clone() }.scenes_change_at(13));
+        assert!(!TrainConfig { data: Some("clips".into()), ..config.clone() }.scenes_change_at(13));
+        for (from, valid) in [(0.0, true), (1.0, true), (-0.1, false), (1.5, false), (f64::NAN, false)] {
+            match (TrainConfig { near_column_probability_from: from, ..config.clone() }).validate() {
+                Ok(()) => assert!(valid, "near_column_probability_from {from} accepted"),
+                Err(e) => {
+                    assert!(!valid && e.to_string().starts_with("near_column_probability_from must be"), "{from}: {e}")
+                }
             }
         }
     }
