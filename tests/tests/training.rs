@@ -366,7 +366,8 @@ fn a_branch_continues_the_run_it_starts_from_with_its_own_configuration() {
 
     // Another MSE weight from step 4 on (and no validation, to save time): the log up to step 4 is
     // the source's, then the runs part.
-    let heavier_config = TrainConfig { mse_weight: 10.0, mse_weight_from: 0.5, ..config.clone() };
+    let heavier_weight = 2.0 * config.mse_weight;
+    let heavier_config = TrainConfig { mse_weight: heavier_weight, mse_weight_from: 0.5, ..config.clone() };
     let heavier_config = TrainConfig { validate_every: 0, validation_data: None, ..heavier_config };
     branch(&heavier_config, &heavier).unwrap();
     let (source_rows, branch_rows) = (logged_losses(&whole), logged_losses(&heavier));
@@ -377,9 +378,10 @@ fn a_branch_continues_the_run_it_starts_from_with_its_own_configuration() {
     // Its checkpoint of step 4 records the branch's configuration, so that --resume continues it.
     let saved = load_checkpoint(&heavier.join("checkpoints/step_00000004.safetensors")).unwrap();
     let saved: TrainConfig = serde_json::from_str(&saved.train_config).unwrap();
-    assert_eq!(saved.mse_weight, 10.0);
-    let heavier_loss = TrainConfig { mse_weight: 10.0, ..config.clone() };
-    assert_eq!(heavier_loss.changes_from(&config).unwrap(), ["mse_weight: 5.0 -> 10.0"]);
+    assert_eq!(saved.mse_weight, heavier_weight);
+    let heavier_loss = TrainConfig { mse_weight: heavier_weight, ..config.clone() };
+    let change = format!("mse_weight: {:?} -> {heavier_weight:?}", config.mse_weight);
+    assert_eq!(heavier_loss.changes_from(&config).unwrap(), [change]);
 
     // A branch needs an empty folder, the same network and a step before its end.
     let err = branch(&config, &same).unwrap_err();

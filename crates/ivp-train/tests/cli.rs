@@ -353,9 +353,9 @@ fn train_export_eval_infer_and_upsample_from_the_command_line() {
 
     // A branch of the run from its first checkpoint says what it changes.
     let branch = dir.path().join("branch");
-    let args = ["--config", s(&config), "--steps", "2", "--mse-weight", "10", "--out", s(&branch)];
+    let args = ["--config", s(&config), "--steps", "2", "--mse-weight", "20", "--out", s(&branch)];
     let stdout = ok(&[&["train", "--synthetic", "--branch-from", s(&first)][..], &args].concat());
-    let expected = format!("branching from {} at step 1; changed: mse_weight: 5.0 -> 10.0\n", s(&first));
+    let expected = format!("branching from {} at step 1; changed: mse_weight: 10.0 -> 20.0\n", s(&first));
     assert!(stdout.contains(&expected), "{stdout}");
     assert!(branch.join("model.safetensors").is_file());
 

@@ -12,7 +12,8 @@ use ivp_train::onnx::export_onnx;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
-/// The committed model of the recipe (results/ablate/full/seed0).
+/// A committed trained model of the width the recipe trains (results/ablate/full/seed0, of the
+/// ablation's recipe): what the graph must reproduce is a trained network's, not a random one's.
 fn trained_model() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../../results/ablate/full/seed0/model.safetensors")
 }
