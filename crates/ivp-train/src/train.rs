@@ -76,8 +76,9 @@ pub struct TrainConfig {
     /// 14.7 D-MSE on the 12 real clips at 320x240 and 542.8 ± 14.5 at 1080p, against 534.2 ± 16.2
     /// and 550.0 ± 14.3 for the recipe before (no columns, weight 5), and 517.3 ± 13.7 and 547.4 ±
     /// 13.0 with the columns alone (results/recipe-hd). Another draw of the second halves' batches
-    /// scores 512.3 and 554.0: over both draws, 5% lower at 320x240 and even at 1080p. Columns from the start: 2.4% lower at
-    /// 320x240 than without, but 0.9% higher at 1080p with the seeds 15.3% apart there.
+    /// scores 512.3 and 554.0: over both draws, 5% lower at 320x240 and even at 1080p. Columns
+    /// from the start: 2.4% lower at 320x240 than without, but 0.9% higher at 1080p with the
+    /// seeds 15.3% apart there.
     pub near_column_probability: f64,
     /// The fraction of `steps` from which generated scenes hold near columns; the data of the
     /// steps before it are the scenes without them, whatever `near_column_probability` says.
