@@ -42,6 +42,8 @@ pub struct FrameCase {
     /// The depth head's width multiplier of the untrained network.
     pub depth_head_mult: f64,
     pub iterations: usize,
+    /// The longest run of disocclusions the thin-run rule fills (0: none).
+    pub thin_run: usize,
     pub coverage: Coverage,
     /// The scale the model runs at.
     pub scale: Scale,
@@ -166,7 +168,10 @@ fn model_of(case: &FrameCase) -> Result<ModelInfiller> {
         }
     };
     ensure!(net.config().variant.predicts_vectors(), "ivp bench frame times the vector variants only");
-    Ok(ModelInfiller::new("ivp", net, case.iterations).with_coverage(case.coverage).with_scale(case.scale))
+    Ok(ModelInfiller::new("ivp", net, case.iterations)
+        .with_coverage(case.coverage)
+        .with_scale(case.scale)
+        .with_thin_run(case.thin_run))
 }
 
 /// Target `target` of `clip` (frames `target - 3 ..= target` present) predicted `case.runs` times

@@ -51,6 +51,8 @@ pub struct MethodSpecs<'a> {
     pub models: &'a [String],
     /// Iterations of the models' test-time infilling (ALGORITHMS.md §6.5).
     pub iterations: usize,
+    /// The longest run of disocclusions the thin-run rule fills before the models' passes (0: none).
+    pub thin_run: usize,
     /// Frames predicted by another tool: `NAME=DIR`.
     pub externals: &'a [String],
     /// How the models cover a frame (sparse tiles, or dense).
@@ -62,7 +64,7 @@ pub struct MethodSpecs<'a> {
 /// The methods `specs` names: those of `names` in their order, then the models `names` leaves
 /// out, then the external methods. Two methods of the same name would make the table ambiguous.
 pub fn build_methods(specs: &MethodSpecs<'_>) -> Result<Vec<Method>> {
-    let mut models = load_models(specs.models, specs.iterations, specs.coverage, specs.scale)?;
+    let mut models = load_models(specs)?;
     let mut methods = Vec::new();
     for name in specs.names.iter().map(|m| m.trim()).filter(|m| !m.is_empty()) {
         methods.push(named_method(name, &mut models)?);
@@ -83,14 +85,18 @@ pub fn model_spec(spec: &str) -> (String, PathBuf) {
     }
 }
 
-fn load_models(specs: &[String], iterations: usize, coverage: Coverage, scale: Scale) -> Result<Vec<ModelInfiller>> {
+fn load_models(specs: &MethodSpecs<'_>) -> Result<Vec<ModelInfiller>> {
     specs
+        .models
         .iter()
         .map(|spec| {
             let (name, file) = model_spec(spec);
-            ensure!(iterations > 0, "--iterations must be at least 1");
+            ensure!(specs.iterations > 0, "--iterations must be at least 1");
             let (net, _) = load_model(&file)?;
-            Ok(ModelInfiller::new(name, net, iterations).with_coverage(coverage).with_scale(scale))
+            Ok(ModelInfiller::new(name, net, specs.iterations)
+                .with_coverage(specs.coverage)
+                .with_scale(specs.scale)
+                .with_thin_run(specs.thin_run))
         })
         .collect()
 }
@@ -583,6 +589,7 @@ mod tests {
             names: &names(methods),
             models: &[],
             iterations: 1,
+            thin_run: 0,
             externals,
             coverage: Coverage::Dense,
             scale: Scale::Factor(1),

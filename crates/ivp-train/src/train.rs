@@ -40,7 +40,7 @@ use crate::distributed::{
 use crate::eval::FIRST_TARGET;
 use crate::guide::{Guide, GuideChoice, GuideSource, GuideTarget};
 use crate::metrics_csv::{d_mse_as_logged, LossWindow, MetricsLog, MetricsRow};
-use crate::plot::write_loss_curve;
+use crate::plot::{write_loss_curve, Marks};
 use crate::progress::progress_bar;
 use crate::validation::{ValidationConfig, ValidationReport, ValidationSet, REPOSITORY_CLIPS};
 
@@ -132,8 +132,8 @@ pub struct TrainConfig {
     /// Validation clips of 6 frames at 1920x1080 (3 targets each).
     pub validation_hd_clips: usize,
     /// A folder of real clips (12 frames or more) scored at every validation beside the generated
-    /// ones, at `validation_targets`: of what a run prints, the figure that ranks runs as other
-    /// real renders do, and what chooses the model (`select_from`). By default the repository's
+    /// ones, at `validation_targets`: of what a run prints, the figure closest to real renders,
+    /// and what chooses the model when `select_from` is below 1. By default the repository's
     /// `data/blender-dev`, relative to the working folder (skipped with a warning when missing).
     /// Keep it out of what you will judge the model on.
     pub validation_data: Option<PathBuf>,
@@ -149,17 +149,19 @@ pub struct TrainConfig {
     /// Checkpoints kept in `checkpoints/` (older ones are deleted).
     pub keep_checkpoints: usize,
     /// The model file is the mean of the parameters of this many consecutive checkpoints,
-    /// `checkpoint_every` steps apart (its *window*; 1: one checkpoint): the window chosen by
-    /// `select_from`, or else the last one. Means of 3 vary less from seed to seed than single
-    /// checkpoints: over five seeds of the recipe the worst seed is 4.5% above the best at 320x240
-    /// instead of 12% (results/recipe-hd). Must not exceed `keep_checkpoints`.
+    /// `checkpoint_every` steps apart (its *window*; 1: one checkpoint): the last window, or the
+    /// one `select_from` chooses. The recipe's 9 are steps 3000-5000: single checkpoints 250
+    /// steps apart differ at 1080p by as much as seeds do (500-620 D-MSE for one seed), and the
+    /// mean of the last 9 brought five seeds within 3.8% of each other there (results/recipe-hd,
+    /// "Thin runs"). Must not exceed `keep_checkpoints`.
     pub average_checkpoints: usize,
-    /// With `validation_data`, the model file is the window that scored the lowest D-MSE on those
-    /// real clips among the validations from this fraction of `steps` on (the last step's among
-    /// them): from then on, the validation of a checkpointed step scores the mean of the window
-    /// that ends there (metrics.csv logs it), not the parameters of that step alone. Checkpoints
-    /// 250 steps apart differ by as much as seeds do, and real clips rank them as other real renders
-    /// do (results/recipe-hd). 1, or no `validation_data`: the last window.
+    /// Below 1, with `validation_data`: the model file is the window that scored the lowest D-MSE
+    /// on those real clips among the validations from this fraction of `steps` on (the last
+    /// step's among them); from then on, the validation of a checkpointed step scores the mean of
+    /// the window that ends there (metrics.csv logs it). 1 (the recipe), or no `validation_data`:
+    /// the last window. With the thin-run rule (ALGORITHMS.md §6.5) the windows of a run score
+    /// within 0.5% of each other on the real clips, so that choice follows noise, while their
+    /// 1080p scores spread by 20% (results/recipe-hd, "Thin runs").
     pub select_from: f64,
     /// Background threads that make batches.
     pub data_workers: usize,
@@ -199,9 +201,9 @@ impl Default for TrainConfig {
             validation_targets: (3..=11).collect(),
             iterations: ivp_core::infill::DEFAULT_ITERATIONS,
             checkpoint_every: 250,
-            keep_checkpoints: 3,
-            average_checkpoints: 3,
-            select_from: 0.5,
+            keep_checkpoints: 9,
+            average_checkpoints: 9,
+            select_from: 1.0,
             data_workers: 1,
         }
     }
@@ -491,6 +493,36 @@ impl TrainConfig {
         self.data.is_none() && self.near_column_probability > 0.0 && step == self.near_columns_start()
     }
 
+    /// The steps inside the run where what it trains on or how changes, each with what changes
+    /// there, in order of step (changes at the same step share one entry). `loss.png` marks
+    /// them: the total loss jumps where the MSE term's weight does.
+    pub fn schedule_changes(&self) -> Vec<(u64, String)> {
+        let inside = |step: u64| step > 0 && step < self.steps;
+        let mut changes: Vec<(u64, String)> = Vec::new();
+        if self.guide_source().ok().flatten().is_some() && inside(self.guide_steps) {
+            changes.push((self.guide_steps, "guide term off".into()));
+        }
+        let mse_from = self.step_at(self.mse_weight_from);
+        if self.mse_weight != LossWeights::default().mse && inside(mse_from) {
+            changes.push((mse_from, format!("MSE term x{}", self.mse_weight)));
+        }
+        if self.data.is_none() && self.near_column_probability > 0.0 && inside(self.near_columns_start()) {
+            changes.push((self.near_columns_start(), "near columns".into()));
+        }
+        if let Some(start) = self.selection_start().filter(|&s| inside(s)) {
+            changes.push((start, "model chosen from here".into()));
+        }
+        changes.sort_by_key(|c| c.0);
+        let mut merged: Vec<(u64, String)> = Vec::new();
+        for (step, what) in changes {
+            match merged.last_mut() {
+                Some((last, text)) if *last == step => *text = format!("{text}, {what}"),
+                _ => merged.push((step, what)),
+            }
+        }
+        merged
+    }
+
     /// Where the clips of step `step` come from: the dataset, or [`TrainConfig::scene_params_at`].
     fn source_at(&self, step: u64) -> Result<Arc<dyn ClipSource>> {
         Ok(match &self.data {
@@ -690,7 +722,8 @@ pub fn train_on(
                 model_steps = window_steps(config, step);
             }
         }
-        write_loss_curve(&run_dir.join("loss.png"), run.log.rows())?;
+        let marks = Marks { changes: config.schedule_changes(), model_steps: model_steps.clone() };
+        write_loss_curve(&run_dir.join("loss.png"), run.log.rows(), &marks)?;
     }
     Ok(TrainSummary {
         steps_done: step,
@@ -960,9 +993,11 @@ fn branch_from(
 
     let checkpoints = run_dir.join("checkpoints");
     let source_checkpoints = source.parent().unwrap_or(Path::new("."));
-    // The windows that end after the branch's start reach back into the source's checkpoints.
+    // The windows that end after the branch's start reach back into the source's checkpoints:
+    // those that may become the model or are validated as windows.
     let every = config.checkpoint_every;
-    let window_ends = (1..=config.average_checkpoints as u64).map(|k| (ckpt.step / every + k) * every);
+    let used = |end: &u64| config.selection_start().map_or(*end == config.steps, |start| *end >= start);
+    let window_ends = (1..=config.average_checkpoints as u64).map(|k| (ckpt.step / every + k) * every).filter(used);
     let mut needed: Vec<u64> =
         window_ends.flat_map(|end| window_steps(config, end)).filter(|&s| s < ckpt.step).collect();
     needed.sort_unstable();
@@ -1540,6 +1575,25 @@ mod tests {
                 Err(e) => assert!(!valid && e.to_string().starts_with("mse_weight_from must be"), "{from}: {e}"),
             }
         }
+    }
+
+    #[test]
+    fn the_schedule_changes_are_the_recipes_steps_merged_by_step() {
+        let recipe = TrainConfig::default();
+        assert_eq!(
+            recipe.schedule_changes(),
+            [(500, "guide term off".to_string()), (2500, "MSE term x10, near columns".to_string())]
+        );
+        let choosing = TrainConfig { select_from: 0.5, ..recipe.clone() };
+        assert_eq!(choosing.schedule_changes()[1].1, "MSE term x10, near columns, model chosen from here");
+        // The paper's loss, no columns, a dataset: the guide alone changes.
+        let plain = TrainConfig { mse_weight: 1.0, data: Some("clips".into()), ..choosing.clone() };
+        let plain = TrainConfig { validation_data: None, ..plain };
+        assert_eq!(plain.schedule_changes(), [(500, "guide term off".to_string())]);
+        // Changes at the first or the last step are no changes inside the run.
+        let edges =
+            TrainConfig { guide_steps: 5000, mse_weight_from: 0.0, near_column_probability_from: 1.0, ..choosing };
+        assert_eq!(edges.schedule_changes(), [(2500, "model chosen from here".to_string())]);
     }
 
     #[test]

@@ -19,7 +19,7 @@ use std::time::{Duration, Instant};
 use rayon::prelude::*;
 
 use crate::geometry::{DepthMap, HoleMask, KnownRead, NearestKnown, Pixel, PixelClass, RgbImage, VectorField};
-use crate::infill::rules::{background_source, fill_new_regions_with};
+use crate::infill::rules::{background_source, fill_new_regions_with, thin_run_source};
 use crate::infill::InfillError;
 use crate::prior::{background_depth_thresholds_at, ScaledPrior};
 
@@ -133,6 +133,9 @@ pub struct IterativeInfill {
     /// (bilinearly averaged) position among the originally known pixels that its colour comes
     /// from. Equal to `vectors` for pixels that read originally known pixels only.
     pub composed_vectors: VectorField,
+    /// Disocclusion pixels in thin runs, filled before the first iteration by the rule of
+    /// [`thin_run_source`].
+    pub thin_runs: usize,
     /// Disocclusion pixels filled by each iteration (`len() == iterations`); the last entry counts
     /// the walked and fallen-back pixels too. Iterations that had nothing left to fill count 0.
     pub filled_per_iteration: Vec<usize>,
@@ -222,6 +225,7 @@ pub fn infill_iteratively(
     holes: &HoleMask,
     prior: &ScaledPrior,
     iterations: usize,
+    thin_run: usize,
 ) -> Result<IterativeInfill, InfillError> {
     let start = Instant::now();
     let (w, h) = (warped.width(), warped.height());
@@ -263,6 +267,7 @@ pub fn infill_iteratively(
         vectors: outputs.vectors,
         // Made from the composed sources once every pixel is filled (below).
         composed_vectors: VectorField::zeros(0, 0),
+        thin_runs: 0,
         filled_per_iteration: vec![0; iterations],
         walked: 0,
         fell_back: 0,
@@ -272,6 +277,30 @@ pub fn infill_iteratively(
         other_time: Duration::ZERO,
     };
     if let Some(Working { depth: mut depth_map, mut known, mut sources, mut prior, mut to_fill }) = working {
+        // Thin runs first: they copy their background neighbour, and the passes see them known.
+        let thin: Vec<Option<Pixel>> = remaining
+            .par_iter()
+            .with_min_len(PIXELS_PER_TASK)
+            .map(|&i| thin_run_source(&nearest, warped_depth, (i % w, i / w), thin_run))
+            .collect();
+        let (mut wide, mut wide_thresholds) = (Vec::new(), Vec::new());
+        for ((&i, &threshold), source) in remaining.iter().zip(&thresholds).zip(thin) {
+            let Some(q) = source else {
+                wide.push(i);
+                wide_thresholds.push(threshold);
+                continue;
+            };
+            let vector = [q.0 as f32 - (i % w) as f32, q.1 as f32 - (i / w) as f32];
+            out.image.pixels_mut()[i] = warped.get(q.0, q.1);
+            out.vectors.pixels_mut()[i] = vector;
+            depth_map.pixels_mut()[i] = [warped_depth.at(q.0, q.1)];
+            sources[i] = [q.0 as f32, q.1 as f32];
+            prior.set(i, vector);
+            known[i] = true;
+            to_fill[i] = false;
+            out.thin_runs += 1;
+        }
+        (remaining, thresholds) = (wide, wide_thresholds);
         for (iteration, filled) in out.filled_per_iteration.iter_mut().enumerate() {
             if remaining.is_empty() {
                 break;
@@ -547,9 +576,11 @@ mod tests {
         FnPredictor(move |_: &VectorField, depth: &DepthMap, holes: &[bool]| on_holes(depth, holes, &f))
     }
 
+    /// The passes alone: these small frames' holes are thin runs, which the tests of the thin-run
+    /// rule cover.
     fn run(predictor: &dyn VectorPredictor, warp: &Warp, prior: &VectorField, iterations: usize) -> IterativeInfill {
         let prior = ScaledPrior::full_size(prior.clone());
-        infill_iteratively(predictor, &warp.image, &warp.depth, &warp.holes, &prior, iterations).unwrap()
+        infill_iteratively(predictor, &warp.image, &warp.depth, &warp.holes, &prior, iterations, 0).unwrap()
     }
 
     fn zero_prior(warp: &Warp) -> VectorField {
@@ -981,6 +1012,64 @@ mod tests {
         }
     }
 
+    /// 14x8: a sliver of disocclusions 2 pixels wide (columns 2-3, rows 1-5) between a
+    /// foreground column (1, depth 1) and background (depth 5), and a 5x5 block of them (columns
+    /// 7-11, rows 1-5) with background around it.
+    fn sliver_and_block() -> Warp {
+        let hole = |u: usize, v: usize| (1..=5).contains(&v) && ((2..=3).contains(&u) || (7..=11).contains(&u));
+        let known: Vec<bool> = (0..8).flat_map(|v| (0..14).map(move |u| !hole(u, v))).collect();
+        warp_of(labelled, |u, _| if u <= 1 { 1.0 } else { 5.0 }, &known, 14, 8)
+    }
+
+    #[test]
+    fn thin_runs_copy_their_background_end_before_the_passes() {
+        let warp = sliver_and_block();
+        let sliver: Vec<Pixel> = (1..=5).flat_map(|v| [(2, v), (3, v)]).collect();
+        for thin_run in [2, 3] {
+            // Vectors onto the foreground column: the passes would copy it into the sliver.
+            let predictor = Recording::new(to_nearest_known(Direction::Left));
+            let prior = ScaledPrior::full_size(zero_prior(&warp));
+            let out =
+                infill_iteratively(&predictor, &warp.image, &warp.depth, &warp.holes, &prior, 3, thin_run).unwrap();
+            assert_eq!(out.thin_runs, sliver.len(), "thin_run {thin_run}");
+            assert_eq!(out.filled_per_iteration.iter().sum::<usize>(), 25, "the block is the passes'");
+            for &(u, v) in &sliver {
+                assert_eq!(out.image.get(u, v), labelled(4, v), "({u}, {v}) copies the background end");
+                assert_eq!(out.vectors.get(u, v), [4.0 - u as f32, 0.0]);
+                assert_eq!(out.composed_vectors.get(u, v), [4.0 - u as f32, 0.0]);
+            }
+            // The passes see the sliver known, at the depth it copied, with its vector as prior.
+            let first = &predictor.calls()[0];
+            for &(u, v) in &sliver {
+                assert!(!first.holes[v * 14 + u]);
+                assert_eq!(first.depth.get(u, v), [5.0]);
+                assert_eq!(first.prior.get(u, v), [4.0 - u as f32, 0.0]);
+            }
+            assert!(first.holes[3 * 14 + 9], "the block's centre is still a hole");
+        }
+        // A run of 1 is shorter than the sliver: the passes fill it, from the foreground.
+        let predictor = to_nearest_known(Direction::Left);
+        let out = run(&predictor, &warp, &zero_prior(&warp), 3);
+        assert_eq!(out.thin_runs, 0);
+        assert_eq!(out.image.get(2, 3), labelled(1, 3));
+    }
+
+    #[test]
+    fn a_frame_of_thin_runs_alone_never_calls_the_network() {
+        let warp = sliver_and_block();
+        let known: Vec<bool> =
+            (0..8).flat_map(|v| (0..14).map(move |u| !((1..=5).contains(&v) && (2..=3).contains(&u)))).collect();
+        let only_sliver = warp_of(labelled, |u, _| if u <= 1 { 1.0 } else { 5.0 }, &known, 14, 8);
+        assert!(warp.holes.disocclusions().iter().filter(|&&h| h).count() > 10);
+        let predictor = Recording::new(constant([1.0, 0.0]));
+        let prior = ScaledPrior::full_size(zero_prior(&only_sliver));
+        let out =
+            infill_iteratively(&predictor, &only_sliver.image, &only_sliver.depth, &only_sliver.holes, &prior, 3, 3)
+                .unwrap();
+        assert_eq!((out.thin_runs, out.predictions, predictor.calls().len()), (10, 0, 0));
+        assert_eq!(out.filled_per_iteration, [0, 0, 0]);
+    }
+
     #[test]
     fn bad_inputs_are_errors() {
         let warp = row_scene();
@@ -988,19 +1077,27 @@ mod tests {
         let ok = constant([1.0, 0.0]);
         let err =
             |result: Result<IterativeInfill, InfillError>| matches!(result, Err(InfillError::SizeMismatch { .. }));
-        let no_iterations = infill_iteratively(&ok, &warp.image, &warp.depth, &warp.holes, &prior, 0);
+        let no_iterations = infill_iteratively(&ok, &warp.image, &warp.depth, &warp.holes, &prior, 0, 0);
         assert!(matches!(no_iterations, Err(InfillError::NoIterations)));
-        assert!(err(infill_iteratively(&ok, &warp.image, &warp.depth, &warp.holes, &ScaledPrior::zeros(3, 3, 1), 3)));
-        assert!(err(infill_iteratively(&ok, &warp.image, &DepthMap::zeros(8, 4), &warp.holes, &prior, 3)));
+        assert!(err(infill_iteratively(
+            &ok,
+            &warp.image,
+            &warp.depth,
+            &warp.holes,
+            &ScaledPrior::zeros(3, 3, 1),
+            3,
+            0
+        )));
+        assert!(err(infill_iteratively(&ok, &warp.image, &DepthMap::zeros(8, 4), &warp.holes, &prior, 3, 0)));
         let wrong_size = FnPredictor(|_: &VectorField, _: &DepthMap, _: &[bool]| VectorField::zeros(2, 2));
-        assert!(err(infill_iteratively(&wrong_size, &warp.image, &warp.depth, &warp.holes, &prior, 3)));
+        assert!(err(infill_iteratively(&wrong_size, &warp.image, &warp.depth, &warp.holes, &prior, 3, 0)));
         struct Failing;
         impl VectorPredictor for Failing {
             fn predict(&self, _: &VectorField, _: &DepthMap, _: &[bool]) -> Result<VectorField, InfillError> {
                 Err(candle_core::Error::Msg("no model".into()).into())
             }
         }
-        let result = infill_iteratively(&Failing, &warp.image, &warp.depth, &warp.holes, &prior, 3);
+        let result = infill_iteratively(&Failing, &warp.image, &warp.depth, &warp.holes, &prior, 3, 0);
         assert!(matches!(&result, Err(InfillError::Network(e)) if e.to_string().contains("no model")), "{result:?}");
     }
 }

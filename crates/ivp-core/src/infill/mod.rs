@@ -18,7 +18,9 @@ pub mod telea;
 
 pub use classical::{classical_infiller, BackgroundFill, CopyLast, Oracle, WarpOnly, CLASSICAL_METHODS};
 pub use iterative::{infill_iteratively, IterativeInfill, VectorPredictor, DEFAULT_ITERATIONS, MAX_WALK_MAGNITUDE};
-pub use rules::{background_source, fill_disocclusions_background, fill_new_regions, new_region_source};
+pub use rules::{
+    background_source, fill_disocclusions_background, fill_new_regions, new_region_source, thin_run_source, THIN_RUN,
+};
 pub use telea::{inpaint_telea, Telea, TELEA_RADIUS};
 
 use std::time::{Duration, Instant};

@@ -1,7 +1,9 @@
-//! The flags every command that runs a model shares: how it covers a frame, and at what scale.
+//! The flags every command that runs a model shares: how it covers a frame, at what scale, and
+//! which holes it leaves to the thin-run rule.
 
 use clap::Args;
 use ivp_core::inference::{Coverage, Scale, TileShape};
+use ivp_core::infill::THIN_RUN;
 
 /// How a trained model covers a frame: sparse tiles by default, `--dense` for one pass over the
 /// whole frame (for comparison; the results agree within the tolerance PERFORMANCE.md states).
@@ -22,6 +24,11 @@ pub struct CoverageArgs {
     /// `auto` shrinks frames of 810 rows or more towards 540 rows (2 at 1080p).
     #[arg(long, default_value_t = Scale::Auto)]
     pub scale: Scale,
+    /// Disocclusions in runs of at most this many unknown pixels between two known ones (along a
+    /// row, else a column) copy the farther of the two before the network runs (0: the network
+    /// fills every disocclusion, as in the paper; ALGORITHMS.md §6.5).
+    #[arg(long, default_value_t = THIN_RUN)]
+    pub thin_run: usize,
 }
 
 impl CoverageArgs {

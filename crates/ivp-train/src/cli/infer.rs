@@ -31,7 +31,10 @@ impl ModelArgs {
         ensure!(self.iterations > 0, "--iterations must be at least 1");
         let coverage = self.coverage.coverage()?;
         let (net, _) = load_model(&self.model)?;
-        Ok(ModelInfiller::new("ivp", net, self.iterations).with_coverage(coverage).with_scale(self.coverage.scale))
+        Ok(ModelInfiller::new("ivp", net, self.iterations)
+            .with_coverage(coverage)
+            .with_scale(self.coverage.scale)
+            .with_thin_run(self.coverage.thin_run))
     }
 }
 
