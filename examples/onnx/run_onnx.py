@@ -4,10 +4,14 @@
 
 Each INPUTS file is what `ivp infer --network-inputs` writes for one target (MODEL.md, "Running
 the graph"): the graph's inputs `prior`, `depth`, `hole`, and `warped`, `known`, `fill`, `threshold`, `truth`.
-The graph gives the vectors; everything after it is here, in numpy, as ivp does it with one
+The graph gives the vectors; everything around it is here, in numpy, as ivp does it with one
 iteration (ALGORITHMS.md §6.3, §6.5):
 
-- each disocclusion pixel p reads the warped frame at p + v, bilinearly over the known corners
+- before the graph runs, the thin runs: a disocclusion pixel in a run of at most 3 unknown pixels
+  between two known pixels of its row (else of its column) copies the one of the two with the
+  larger valid depth (ties: the left or upper one); it becomes known, at that depth, with the
+  vector to it as its prior, and leaves the graph's `hole` input;
+- each remaining disocclusion pixel p reads the warped frame at p + v, bilinearly over the known corners
   only (the weights renormalised over them);
 - a vector that reads nothing is walked along its direction, magnitudes 1..100, and the first
   magnitude that reads a known pixel is taken;
@@ -22,11 +26,48 @@ Needs numpy, onnxruntime and safetensors (pip install numpy onnxruntime safetens
 import sys
 
 import numpy as np
-import onnxruntime as ort
 from safetensors.numpy import load_file
 
 MAX_WALK_MAGNITUDE = 100
 FOREGROUND_DEPTH_RATIO = 4.0
+THIN_RUN = 3
+
+
+def thin_run_sources(known, depth, hole, max_run=THIN_RUN):
+    """The disocclusion pixels in thin runs and the pixels they copy: arrays ys, xs, source_ys,
+    source_xs. Along the row first, then the column, as ivp's `thin_run_source`."""
+    valid = np.isfinite(depth) & (depth > 0)
+    key = np.where(valid, depth, -np.inf)
+    found = []
+    for y, x in zip(*np.nonzero(hole)):
+        for line, p, along_row in ((known[y], x, True), (known[:, x], y, False)):
+            before, after = np.nonzero(line[:p])[0], np.nonzero(line[p + 1:])[0]
+            if not len(before) or not len(after):
+                continue
+            a, b = before[-1], p + 1 + after[0]
+            if b - a - 1 > max_run:
+                continue
+            ends = ((y, a), (y, b)) if along_row else ((a, x), (b, x))
+            source = ends[1] if key[ends[1]] > key[ends[0]] else ends[0]
+            found.append((y, x) + source)
+            break
+    rows = np.array(found, np.int64).reshape(-1, 4)
+    return rows[:, 0], rows[:, 1], rows[:, 2], rows[:, 3]
+
+
+def fill_thin_runs(t):
+    """Applies the thin runs to the inputs of one target (in place): the frame and the graph's
+    inputs change; returns the frame."""
+    hole, known = t["hole"][0, 0] > 0, t["known"][0, 0] > 0
+    depth, frame = t["depth"][0, 0], t["warped"][0].copy()
+    ys, xs, sy, sx = thin_run_sources(known, depth, hole)
+    frame[:, ys, xs] = t["warped"][0][:, sy, sx]
+    depth[ys, xs] = depth[sy, sx]
+    t["prior"][0, 0, ys, xs] = (sx - xs).astype(np.float32)
+    t["prior"][0, 1, ys, xs] = (sy - ys).astype(np.float32)
+    t["hole"][0, 0, ys, xs] = 0
+    t["known"][0, 0, ys, xs] = 1
+    return frame
 
 
 def known_read(image, known, x, y):
@@ -50,11 +91,12 @@ def known_read(image, known, x, y):
     return colour / np.where(found, total, 1), found
 
 
-def infill_once(vectors, warped, depth, known, fill, threshold, hole):
-    """The predicted frame (3, H, W) from one set of vectors (2, H, W)."""
-    frame = warped.copy()
+def infill_once(vectors, image, depth, known, fill, threshold, hole):
+    """The predicted frame (3, H, W) from one set of vectors (2, H, W): `image` (the warped frame,
+    thin runs filled) with the pixels of `hole` read from its `known` pixels."""
+    frame = image.copy()
     # Colour and depth are read together: channel 3 is the depth.
-    warped = np.concatenate([warped, depth[None]])
+    warped = np.concatenate([image, depth[None]])
     read_depth = np.full(hole.shape, np.nan, np.float32)
     ys, xs = np.nonzero(hole)
     # Positions in f32, as ivp adds them.
@@ -97,15 +139,19 @@ def d_mse(frame, truth, hole):
 def main():
     if len(sys.argv) < 3:
         sys.exit(__doc__)
+    import onnxruntime as ort
+
     session = ort.InferenceSession(sys.argv[1], providers=["CPUExecutionProvider"])
     scores = []
     for path in sys.argv[2:]:
         t = load_file(path)
-        (vectors,) = session.run(["vectors"], {name: t[name] for name in ("prior", "depth", "hole")})
         hole = t["hole"][0, 0] > 0
-        frame = infill_once(
-            vectors[0], t["warped"][0], t["depth"][0, 0], t["known"][0, 0] > 0, t["fill"][0], t["threshold"][0, 0], hole
-        )
+        frame = fill_thin_runs(t)
+        left = t["hole"][0, 0] > 0
+        if left.any():
+            (vectors,) = session.run(["vectors"], {name: t[name] for name in ("prior", "depth", "hole")})
+            known = t["known"][0, 0] > 0
+            frame = infill_once(vectors[0], frame, t["depth"][0, 0], known, t["fill"][0], t["threshold"][0, 0], left)
         score = d_mse(frame, t["truth"][0], hole)
         print(f"{path}: {hole.sum()} disocclusion pixels, D-MSE {score if score is None else round(score, 2)}")
         if score is not None:

@@ -34,10 +34,11 @@ fn tiny(steps: u64) -> TrainConfig {
 }
 
 /// `tiny(8)` validated every 2 steps on targets 6, 8 and 10 of a Blender clip, with a checkpoint
-/// as often: what a choice of checkpoint by real clips needs.
+/// as often: what a choice of checkpoint by real clips needs. The clip's disocclusions are wide
+/// enough for the network to fill (clip_002's are all thin runs, which the network never sees).
 fn validated_on_a_real_clip() -> TrainConfig {
     TrainConfig {
-        validation_data: Some(ivp_tests::blender_dev().join("clip_002")),
+        validation_data: Some(ivp_tests::blender_dev().join("clip_001")),
         validation_targets: vec![6, 8, 10],
         validation_clips: 0,
         validate_every: 2,
