@@ -153,7 +153,8 @@ pub struct TrainConfig {
     /// one `select_from` chooses. The recipe's 9 are steps 3000-5000: single checkpoints 250
     /// steps apart differ at 1080p by as much as seeds do (500-620 D-MSE for one seed), and the
     /// mean of the last 9 brought five seeds within 3.8% of each other there (results/recipe-hd,
-    /// "Thin runs"). Must not exceed `keep_checkpoints`.
+    /// "Thin runs"). A run of fewer steps averages from its first checkpoint on (the demo's 1000
+    /// steps take 1). Must not exceed `keep_checkpoints`.
     pub average_checkpoints: usize,
     /// Below 1, with `validation_data`: the model file is the window that scored the lowest D-MSE
     /// on those real clips among the validations from this fraction of `steps` on (the last

@@ -461,21 +461,18 @@ fn train_export_eval_infer_and_upsample_from_the_command_line() {
         "{}",
         String::from_utf8_lossy(&out.stderr)
     );
-    let json = ok(&[
-        "bench",
-        "frame",
-        "--height",
-        "240",
-        "--width",
-        "320",
-        "--width-mult",
-        "0.125",
-        "--runs",
-        "1",
-        "--iterations",
-        "2",
-    ]);
-    let report: serde_json::Value = serde_json::from_str(json.trim()).unwrap();
+    // This generated frame's holes are all thin runs (ALGORITHMS.md §6.5): the rule fills them
+    // and the network never runs, unless --thin-run 0 leaves them to it.
+    let bench_320 = |extra: &[&str]| {
+        let args = ["bench", "frame", "--height", "240", "--width", "320", "--width-mult", "0.125", "--runs", "1"];
+        let json = ok(&[&args[..], &["--iterations", "2"], extra].concat());
+        let report: serde_json::Value = serde_json::from_str(json.trim()).unwrap();
+        (json, report)
+    };
+    let (json, thin) = bench_320(&[]);
+    assert!(thin["hole_fraction"].as_f64().unwrap() > 0.0 && thin["tiles"].as_u64() == Some(0), "{json}");
+    assert_eq!(thin["stages"]["network"]["median_ms"].as_f64(), Some(0.0), "{json}");
+    let (json, report) = bench_320(&["--thin-run", "0"]);
     assert_eq!(report["coverage"], "sparse");
     let median = |stage: &str| report["stages"][stage]["median_ms"].as_f64().unwrap_or(f64::NAN);
     for stage in ["warp", "holes", "prior", "network", "infill"] {
@@ -485,8 +482,10 @@ fn train_export_eval_infer_and_upsample_from_the_command_line() {
     assert!(report["hole_fraction"].as_f64().unwrap() > 0.0 && report["tiles"].as_u64().unwrap() > 0, "{json}");
     assert!(median("network") > 0.0 && median("total") > 0.0, "{json}");
 
-    // The frames of a clip on disk, each target by stage with its holes, tiles and error.
-    let json = ok(&["bench", "frame", "--data", s(&clip), "--targets", "6,8", "--model", s(&model), "--runs", "1"]);
+    // The frames of a clip on disk, each target by stage with its holes, tiles and error (this
+    // clip's slivers reach the network only without the thin-run rule).
+    let bench_args = ["bench", "frame", "--data", s(&clip), "--targets", "6,8", "--model", s(&model), "--runs", "1"];
+    let json = ok(&[&bench_args[..], &["--thin-run", "0"]].concat());
     let report: serde_json::Value = serde_json::from_str(json.trim()).unwrap();
     let frames = report["frames"].as_array().unwrap();
     assert_eq!((report["case"].as_str(), frames.len()), (Some("clip"), 2), "{json}");
