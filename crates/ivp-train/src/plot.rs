@@ -39,8 +39,8 @@ struct Panel {
 /// What `loss.png` marks beside the curves.
 #[derive(Clone, Debug, Default)]
 pub struct Marks {
-    /// Steps where the training changes, each with what changes there
-    /// ([`crate::train::TrainConfig::schedule_changes`]).
+    /// Steps where the training changes, each with what changes there (the training loop passes
+    /// its configuration's schedule).
     pub changes: Vec<(u64, String)>,
     /// The steps whose parameters the model file averages (empty while there is none).
     pub model_steps: Vec<u64>,

@@ -418,11 +418,15 @@ impl TrainConfig {
         self.step_at(self.near_column_probability_from)
     }
 
+    /// The step from which the MSE term takes `mse_weight` (`mse_weight_from`).
+    fn mse_weight_start(&self) -> u64 {
+        self.step_at(self.mse_weight_from)
+    }
+
     /// The weights of the loss's terms at step `step` (0-based): the paper's, with the MSE term's
     /// `mse_weight` from the fraction `mse_weight_from` of the run on.
     pub fn loss_weights_at(&self, step: u64) -> LossWeights {
-        let from = self.step_at(self.mse_weight_from);
-        let mse = if step >= from { self.mse_weight } else { LossWeights::default().mse };
+        let mse = if step >= self.mse_weight_start() { self.mse_weight } else { LossWeights::default().mse };
         LossWeights { mse, ..LossWeights::default() }
     }
 
@@ -503,12 +507,13 @@ impl TrainConfig {
         if self.guide_source().ok().flatten().is_some() && inside(self.guide_steps) {
             changes.push((self.guide_steps, "guide term off".into()));
         }
-        let mse_from = self.step_at(self.mse_weight_from);
+        let mse_from = self.mse_weight_start();
         if self.mse_weight != LossWeights::default().mse && inside(mse_from) {
             changes.push((mse_from, format!("MSE term x{}", self.mse_weight)));
         }
-        if self.data.is_none() && self.near_column_probability > 0.0 && inside(self.near_columns_start()) {
-            changes.push((self.near_columns_start(), "near columns".into()));
+        let columns_from = self.near_columns_start();
+        if self.scenes_change_at(columns_from) && inside(columns_from) {
+            changes.push((columns_from, "near columns".into()));
         }
         if let Some(start) = self.selection_start().filter(|&s| inside(s)) {
             changes.push((start, "model chosen from here".into()));

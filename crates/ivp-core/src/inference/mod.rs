@@ -169,10 +169,6 @@ impl ModelInfiller {
         Self { thin_run, ..self }
     }
 
-    pub fn thin_run(&self) -> usize {
-        self.thin_run
-    }
-
     /// The same model run at `scale` (vector variants; the intensity variant runs at full size).
     pub fn with_scale(self, scale: Scale) -> Self {
         Self { scale, ..self }
