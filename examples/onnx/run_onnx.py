@@ -17,6 +17,9 @@ iteration (ALGORITHMS.md §6.3, §6.5):
   magnitude that reads a known pixel is taken;
 - a pixel that even the walk cannot fill takes the `fill` rule's value, and so does one whose read
   depth is less than its background depth threshold divided by 4 (it read the foreground);
+- the far blur (ALGORITHMS.md §6.5): each disocclusion pixel takes the mean of the infilled pixels
+  around it, over a window of 0.5 pixels per pixel of distance to the nearest known pixel along its
+  row or column, read from a pyramid of the infilled pixels;
 - the frame is quantised to 8 bits, and D-MSE is the mean squared error on 0..255 over the
   disocclusion pixels and the three channels; a clip's D-MSE is the mean over its targets.
 
@@ -31,6 +34,9 @@ from safetensors.numpy import load_file
 MAX_WALK_MAGNITUDE = 100
 FOREGROUND_DEPTH_RATIO = 4.0
 THIN_RUN = 3
+FAR_BLUR = 0.5
+BLUR_LEVELS = 6
+BINOMIAL = np.array([1, 4, 6, 4, 1], np.float32) / 16
 
 
 def thin_run_sources(known, depth, hole, max_run=THIN_RUN):
@@ -129,6 +135,81 @@ def infill_once(vectors, image, depth, known, fill, threshold, hole):
     return frame
 
 
+def distance_to_known(known):
+    """Per pixel, the distance to the nearest known pixel along its row or column (inf if none)."""
+
+    def along_rows(k):
+        x = np.arange(k.shape[1])[None, :]
+        before = np.maximum.accumulate(np.where(k, x, -(10**9)), axis=1)
+        after = np.minimum.accumulate(np.where(k, x, 10**9)[:, ::-1], axis=1)[:, ::-1]
+        return np.minimum(x - before, after - x).astype(np.float64)
+
+    d = np.minimum(along_rows(known), along_rows(known.T).T)
+    return np.where(d > 10**8, np.inf, d)
+
+
+def smooth(level):
+    """The binomial kernel along both axes, edges repeated (level: H, W, C)."""
+    for axis in (1, 0):
+        pad = [(0, 0)] * level.ndim
+        pad[axis] = (2, 2)
+        padded = np.pad(level, pad, mode="edge")
+        n = level.shape[axis]
+        level = sum(k * np.take(padded, np.arange(t, t + n), axis=axis) for t, k in enumerate(BINOMIAL))
+    return level
+
+
+def pool(level):
+    """2x2 cells averaged, the last row or column repeated at odd sizes."""
+    h, w = level.shape[:2]
+    level = np.pad(level, ((0, h % 2), (0, w % 2), (0, 0)), mode="edge")
+    return 0.25 * (level[0::2, 0::2] + level[1::2, 0::2] + level[0::2, 1::2] + level[1::2, 1::2])
+
+
+def read_level(level, j, ys, xs):
+    """Bilinear reads of level j at full-size pixels (ys, xs), positions clamped to the level."""
+    h, w = level.shape[:2]
+    x = np.clip((xs + 0.5) / 2**j - 0.5, 0, w - 1)
+    y = np.clip((ys + 0.5) / 2**j - 0.5, 0, h - 1)
+    x0, y0 = np.floor(x).astype(int), np.floor(y).astype(int)
+    fx, fy = (x - x0)[:, None], (y - y0)[:, None]
+    x1, y1 = np.minimum(x0 + 1, w - 1), np.minimum(y0 + 1, h - 1)
+    return ((1 - fx) * (1 - fy) * level[y0, x0] + fx * (1 - fy) * level[y0, x1]
+            + (1 - fx) * fy * level[y1, x0] + fx * fy * level[y1, x1])
+
+
+def blur_far_pixels(frame, hole, known, strength=FAR_BLUR):
+    """ivp's far blur of the disocclusion pixels `hole` of `frame` (3, H, W), from one another."""
+    ys, xs = np.nonzero(hole)
+    if len(ys) == 0 or strength <= 0:
+        return frame
+    window = strength * distance_to_known(known)[ys, xs]
+    # Colour times weight, and weight: the infilled pixels weigh 1, every other pixel 0.
+    level = np.concatenate([frame.transpose(1, 2, 0), np.ones(hole.shape + (1,), frame.dtype)], axis=2)
+    level = (level * hole[..., None]).astype(np.float64)
+    means = []
+    for j in range(BLUR_LEVELS):
+        if j > 0:
+            level = pool(level)
+        read = read_level(smooth(level), j, ys, xs)
+        weight = read[:, 3:]
+        own = frame[:, ys, xs].T
+        means.append(np.where(weight > 1e-9, read[:, :3] / np.maximum(weight, 1e-30), own))
+    means = np.stack(means)
+    own = frame[:, ys, xs].T
+    t = np.clip(window, 0, 1)[:, None]
+    out = (1 - t) * own + t * means[0]
+    deep = window >= 1
+    lv = np.minimum(np.log2(np.maximum(window, 1)), BLUR_LEVELS - 1)
+    lo = np.floor(lv).astype(int)
+    hi, f = np.minimum(lo + 1, BLUR_LEVELS - 1), (lv - lo)[:, None]
+    index = np.arange(len(ys))
+    out = np.where(deep[:, None], (1 - f) * means[lo, index] + f * means[hi, index], out)
+    frame = frame.copy()
+    frame[:, ys, xs] = out.T.astype(frame.dtype)
+    return frame
+
+
 def d_mse(frame, truth, hole):
     quantised = np.round(np.clip(frame, 0, 1) * 255) / 255
     diff = (quantised.astype(np.float64) - truth.astype(np.float64)) * 255
@@ -145,13 +226,14 @@ def main():
     scores = []
     for path in sys.argv[2:]:
         t = load_file(path)
-        hole = t["hole"][0, 0] > 0
+        hole, known = t["hole"][0, 0] > 0, t["known"][0, 0] > 0
         frame = fill_thin_runs(t)
         left = t["hole"][0, 0] > 0
         if left.any():
             (vectors,) = session.run(["vectors"], {name: t[name] for name in ("prior", "depth", "hole")})
-            known = t["known"][0, 0] > 0
-            frame = infill_once(vectors[0], frame, t["depth"][0, 0], known, t["fill"][0], t["threshold"][0, 0], left)
+            now_known = t["known"][0, 0] > 0
+            frame = infill_once(vectors[0], frame, t["depth"][0, 0], now_known, t["fill"][0], t["threshold"][0, 0], left)
+        frame = blur_far_pixels(frame, hole, known)
         score = d_mse(frame, t["truth"][0], hole)
         print(f"{path}: {hole.sum()} disocclusion pixels, D-MSE {score if score is None else round(score, 2)}")
         if score is not None:

@@ -7,17 +7,17 @@
 # Usage, from the repository's root after `cargo build --release`:
 #   results/recipe-hd/score.sh MODEL OUT_DIR
 # Env: IVP (default target/release/ivp); HD (default ../shared/data/blender-dev-hd: 145 MB, not in
-# the repository); SCALES.
+# the repository); SCALES; FLAGS (more flags for every `ivp eval`, e.g. "--far-blur 0").
 set -euo pipefail
 model=${1:?usage: score.sh MODEL OUT_DIR}
 out=${2:?usage: score.sh MODEL OUT_DIR}
 ivp=${IVP:-target/release/ivp}
 hd=${HD:-../shared/data/blender-dev-hd}
 mkdir -p "$out"
-"$ivp" -q eval --data data --methods fill,telea,oracle --model "$model" --json "$out/dev12.json" >/dev/null
+"$ivp" -q eval --data data --methods fill,telea,oracle --model "$model" ${FLAGS:-} --json "$out/dev12.json" >/dev/null
 if [[ -d $hd ]]; then
   for scale in ${SCALES:-auto 1 3}; do
-    "$ivp" -q eval --data "$hd" --targets 3,4,5 --methods fill,telea,oracle --model "$model" --scale "$scale" \
+    "$ivp" -q eval --data "$hd" --targets 3,4,5 --methods fill,telea,oracle --model "$model" --scale "$scale" ${FLAGS:-} \
       --json "$out/hd_scale-$scale.json" >/dev/null
   done
 else

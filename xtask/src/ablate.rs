@@ -7,8 +7,9 @@
 //! `GuideSource` in ivp-train), `no-depth`, `no-iter` (the full
 //! model at P = 1) and `full` (P = 3). `no-iter` and `full` are the same trained models. Runs that
 //! finished are reused and stopped ones resumed, so a sweep can span several sittings. The models
-//! are scored with `--thin-run 0`, as the paper infills: the thin-run rule (ALGORITHMS.md §6.5)
-//! fills the slivers in which the rows differ most, with the same pixels for every row.
+//! are scored with `--thin-run 0 --far-blur 0`, as the paper infills: the thin-run rule
+//! (ALGORITHMS.md §6.5) fills the slivers in which the rows differ most, with the same pixels for
+//! every row, and the far blur (also §6.5) applies to the vector rows only.
 
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
@@ -18,6 +19,9 @@ use std::process::Command;
 use anyhow::{bail, Context, Result};
 
 use crate::charts::{self, Bar, BarChart, BarGroup};
+
+/// The flags that score models without the rules the paper does not have.
+const PAPER_INFILLING: [&str; 4] = ["--thin-run", "0", "--far-blur", "0"];
 use crate::run;
 
 /// The variants trained, in the order of the table.
@@ -96,7 +100,7 @@ pub fn ablate(ivp: &Path, sweep: &Sweep) -> Result<()> {
                 let mut cmd = Command::new(ivp);
                 // The default targets (6, 8, 10) of 12-frame clips, with the temporal consistency tracks.
                 cmd.args(["--quiet", "eval", "--data"]).arg(data).args(["--methods", "fill"]);
-                cmd.args(["--iterations", &iterations.to_string(), "--thin-run", "0"]).arg("--json").arg(&json);
+                cmd.args(["--iterations", &iterations.to_string()]).args(PAPER_INFILLING).arg("--json").arg(&json);
                 for (row, variant, _) in &rows {
                     cmd.arg("--model").arg(format!("{row}={}", models[variant].join("model.safetensors").display()));
                 }
@@ -151,7 +155,7 @@ fn write_report(ivp: &Path, data: &Path, models: &[(&str, PathBuf)], dir: &Path)
     }
     let mut cmd = Command::new(ivp);
     cmd.args(["--quiet", "eval", "--data"]).arg(data).args(["--methods", "fill,telea", "--iterations", "3"]);
-    cmd.args(["--thin-run", "0"]);
+    cmd.args(PAPER_INFILLING);
     for (name, model) in models {
         cmd.arg("--model").arg(format!("{name}={}", model.display()));
     }

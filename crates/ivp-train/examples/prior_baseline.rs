@@ -1,7 +1,7 @@
 //! Experiment: the temporal prior spread into the holes, as the vectors of the iterative infilling
 //! (a network-free baseline for what the network adds to its prior).
 use ivp_core::infill::{classical_infiller, infill_iteratively, InfillContext, InfillError, Infilled, Infiller};
-use ivp_core::infill::{VectorPredictor, DEFAULT_ITERATIONS, THIN_RUN};
+use ivp_core::infill::{InfillRules, VectorPredictor, DEFAULT_ITERATIONS};
 use ivp_core::prior::{mean_of_nonzero_vectors, ScaledPrior};
 use ivp_core::{DepthMap, VectorField};
 use ivp_train::eval::{evaluate, format_table, Method, DEFAULT_TARGETS};
@@ -35,7 +35,8 @@ impl Infiller for PriorSpread {
         let (width, height) = (w.image.width(), w.image.height());
         let prior = ctx.temporal_prior().map_or_else(|| VectorField::zeros(width, height), |p| p.prior);
         let prior = ScaledPrior::full_size(prior);
-        let out = infill_iteratively(self, &w.image, &w.depth, &w.holes, &prior, DEFAULT_ITERATIONS, THIN_RUN)?;
+        let out =
+            infill_iteratively(self, &w.image, &w.depth, &w.holes, &prior, DEFAULT_ITERATIONS, InfillRules::default())?;
         let stages = vec![("infill", out.predict_time + out.other_time)];
         Ok(Infilled { image: out.image, stages, vectors: Some(out.vectors) })
     }

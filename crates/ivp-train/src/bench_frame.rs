@@ -9,7 +9,7 @@ use std::time::{Duration, Instant};
 
 use anyhow::{ensure, Context, Result};
 use ivp_core::inference::{Coverage, ModelInfiller, Scale};
-use ivp_core::infill::{classical_infiller, InfillContext};
+use ivp_core::infill::{classical_infiller, InfillContext, InfillRules};
 use ivp_core::metrics::score_frame;
 use ivp_core::nn::model::{IvpNet, ModelConfig, Variant};
 use ivp_core::{relative_pose, warp_forward};
@@ -42,8 +42,8 @@ pub struct FrameCase {
     /// The depth head's width multiplier of the untrained network.
     pub depth_head_mult: f64,
     pub iterations: usize,
-    /// The longest run of disocclusions the thin-run rule fills (0: none).
-    pub thin_run: usize,
+    /// The rules around the passes (thin runs, far blur).
+    pub rules: InfillRules,
     pub coverage: Coverage,
     /// The scale the model runs at.
     pub scale: Scale,
@@ -171,7 +171,7 @@ fn model_of(case: &FrameCase) -> Result<ModelInfiller> {
     Ok(ModelInfiller::new("ivp", net, case.iterations)
         .with_coverage(case.coverage)
         .with_scale(case.scale)
-        .with_thin_run(case.thin_run))
+        .with_rules(case.rules))
 }
 
 /// Target `target` of `clip` (frames `target - 3 ..= target` present) predicted `case.runs` times

@@ -11,7 +11,7 @@ use anyhow::{bail, ensure, Context, Result};
 use indicatif::ProgressBar;
 use ivp_core::geometry::FrameView;
 use ivp_core::inference::{Coverage, ModelInfiller, Scale};
-use ivp_core::infill::{classical_infiller, InfillContext, Infiller, CLASSICAL_METHODS};
+use ivp_core::infill::{classical_infiller, InfillContext, InfillRules, Infiller, CLASSICAL_METHODS};
 use ivp_core::metrics::{score_frame, tc_track_variances, FrameScores, TcSequence};
 use ivp_core::{relative_pose, warp_forward, RgbImage, VectorField, Warp};
 use ivp_data::{find_clips, read_rgb, Clip, Frame};
@@ -51,8 +51,8 @@ pub struct MethodSpecs<'a> {
     pub models: &'a [String],
     /// Iterations of the models' test-time infilling (ALGORITHMS.md §6.5).
     pub iterations: usize,
-    /// The longest run of disocclusions the thin-run rule fills before the models' passes (0: none).
-    pub thin_run: usize,
+    /// The rules around the models' passes (thin runs, far blur).
+    pub rules: InfillRules,
     /// Frames predicted by another tool: `NAME=DIR`.
     pub externals: &'a [String],
     /// How the models cover a frame (sparse tiles, or dense).
@@ -96,7 +96,7 @@ fn load_models(specs: &MethodSpecs<'_>) -> Result<Vec<ModelInfiller>> {
             Ok(ModelInfiller::new(name, net, specs.iterations)
                 .with_coverage(specs.coverage)
                 .with_scale(specs.scale)
-                .with_thin_run(specs.thin_run))
+                .with_rules(specs.rules))
         })
         .collect()
 }
@@ -589,7 +589,7 @@ mod tests {
             names: &names(methods),
             models: &[],
             iterations: 1,
-            thin_run: 0,
+            rules: InfillRules::NONE,
             externals,
             coverage: Coverage::Dense,
             scale: Scale::Factor(1),

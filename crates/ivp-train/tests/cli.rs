@@ -387,6 +387,14 @@ fn train_export_eval_infer_and_upsample_from_the_command_line() {
         let image = read_rgb(infer.join(file)).unwrap();
         assert_eq!((image.width(), image.height()), (320, 240), "{file}");
     }
+    // The far blur's strength is a finite number of 0 or more.
+    for bad in ["-1", "nan", "inf"] {
+        let argv =
+            ["infer", "--clip", s(&clip), "--model", s(&model), "--target", "6", "--out", s(&infer), "--far-blur", bad];
+        let refused = ivp(&argv);
+        let stderr = String::from_utf8_lossy(&refused.stderr);
+        assert!(!refused.status.success() && stderr.contains("--far-blur must be"), "--far-blur {bad}: {stderr}");
+    }
 
     let up = dir.path().join("up");
     let stdout = ok(&["upsample", "--clip", s(&clip), "--model", s(&model), "--out", s(&up)]);

@@ -17,8 +17,8 @@ use std::time::{Duration, Instant};
 use candle_core::{Device, Tensor};
 
 use crate::geometry::{DepthMap, HoleMask, PixelClass, RgbImage, VectorField};
-use crate::infill::iterative::{infill_iteratively, VectorPredictor};
-use crate::infill::rules::{fill_new_regions, THIN_RUN};
+use crate::infill::iterative::{infill_iteratively, InfillRules, VectorPredictor};
+use crate::infill::rules::fill_new_regions;
 use crate::infill::{InfillContext, InfillError, Infilled, Infiller};
 use crate::nn::model::{IvpNet, NetInput, Variant};
 use crate::nn::tensor::{from_tensor, to_tensor};
@@ -64,7 +64,7 @@ impl VectorPredictor for IvpNet {
 /// The frame predicted by `net` in dense passes: iterative infilling with `iterations` for the
 /// vector variants, one pass for the intensity variant; new regions by the common rule.
 pub fn infill_frame(net: &IvpNet, inputs: &FrameInputs<'_>, iterations: usize) -> Result<RgbImage, InfillError> {
-    Ok(predict_frame(net, inputs, iterations, THIN_RUN, Coverage::Dense, 1)?.image)
+    Ok(predict_frame(net, inputs, iterations, InfillRules::default(), Coverage::Dense, 1)?.image)
 }
 
 /// What [`predict_frame`] gives besides the image.
@@ -84,14 +84,14 @@ fn predict_frame(
     net: &IvpNet,
     inputs: &FrameInputs<'_>,
     iterations: usize,
-    thin_run: usize,
+    rules: InfillRules,
     coverage: Coverage,
     factor: usize,
 ) -> Result<FramePrediction, InfillError> {
     let (warped, depth, holes, prior) = (inputs.warped, inputs.warped_depth, inputs.holes, inputs.prior);
     if net.config().variant.predicts_vectors() {
         let predictor = NetworkPredictor::new(net, coverage, factor);
-        let out = infill_iteratively(&predictor, warped, depth, holes, prior, iterations, thin_run)?;
+        let out = infill_iteratively(&predictor, warped, depth, holes, prior, iterations, rules)?;
         let (tiles, pixels_read) = (predictor.tiles_run(), predictor.pixels_read());
         tracing::debug!(
             factor,
@@ -150,23 +150,23 @@ pub struct ModelInfiller {
     name: String,
     net: IvpNet,
     iterations: usize,
-    thin_run: usize,
+    rules: InfillRules,
     coverage: Coverage,
     scale: Scale,
 }
 
 impl ModelInfiller {
     /// `iterations` is P of ALGORITHMS.md §6.5 (ignored by the intensity variant). Sparse, at
-    /// the automatic scale and with thin runs of up to [`THIN_RUN`] pixels by default.
+    /// the automatic scale and with the recipe's rules around the passes by default.
     pub fn new(name: impl Into<String>, net: IvpNet, iterations: usize) -> Self {
-        let (coverage, scale) = (Coverage::default(), Scale::default());
-        Self { name: name.into(), net, iterations, thin_run: THIN_RUN, coverage, scale }
+        let (rules, coverage, scale) = (InfillRules::default(), Coverage::default(), Scale::default());
+        Self { name: name.into(), net, iterations, rules, coverage, scale }
     }
 
-    /// The same model leaving runs of up to `thin_run` pixels to the thin-run rule (0: none;
+    /// The same model with other rules around the passes (the thin runs and the far blur:
     /// ALGORITHMS.md §6.5).
-    pub fn with_thin_run(self, thin_run: usize) -> Self {
-        Self { thin_run, ..self }
+    pub fn with_rules(self, rules: InfillRules) -> Self {
+        Self { rules, ..self }
     }
 
     /// The same model run at `scale` (vector variants; the intensity variant runs at full size).
@@ -229,7 +229,7 @@ impl ModelInfiller {
             last_warped: last_warped.as_ref(),
         };
         let started = Instant::now();
-        let out = predict_frame(&self.net, &inputs, self.iterations, self.thin_run, self.coverage, factor)?;
+        let out = predict_frame(&self.net, &inputs, self.iterations, self.rules, self.coverage, factor)?;
         let infill_time = started.elapsed().saturating_sub(out.network_time);
         Ok(ModelPrediction {
             image: out.image,

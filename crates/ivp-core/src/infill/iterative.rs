@@ -19,7 +19,8 @@ use std::time::{Duration, Instant};
 use rayon::prelude::*;
 
 use crate::geometry::{DepthMap, HoleMask, KnownRead, NearestKnown, Pixel, PixelClass, RgbImage, VectorField};
-use crate::infill::rules::{background_source, fill_new_regions_with, thin_run_source};
+use crate::infill::far_blur::{blur_far_pixels, FAR_BLUR};
+use crate::infill::rules::{background_source, fill_new_regions_with, thin_run_source, THIN_RUN};
 use crate::infill::InfillError;
 use crate::prior::{background_depth_thresholds_at, ScaledPrior};
 
@@ -118,6 +119,27 @@ forward_vector_predictor!(&T, Box<T>, Arc<T>);
 // Iterative infilling
 // ---------------------------------------------------------------------------------------------
 
+/// The rules around the network's passes: thin runs filled before them (`thin_run`, the longest
+/// run, 0: none; [`thin_run_source`]) and the far blur after them (`far_blur`, its strength, 0:
+/// none; ALGORITHMS.md §6.5). Neither is in the paper: the default is the recipe's,
+/// [`InfillRules::NONE`] the paper's infilling.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct InfillRules {
+    pub thin_run: usize,
+    pub far_blur: f32,
+}
+
+impl InfillRules {
+    /// The network's passes alone, as the paper infills.
+    pub const NONE: InfillRules = InfillRules { thin_run: 0, far_blur: 0.0 };
+}
+
+impl Default for InfillRules {
+    fn default() -> Self {
+        InfillRules { thin_run: THIN_RUN, far_blur: FAR_BLUR }
+    }
+}
+
 /// The result of [`infill_iteratively`].
 #[derive(Clone, Debug)]
 pub struct IterativeInfill {
@@ -215,6 +237,11 @@ fn size_error(what: &'static str, w: usize, h: usize, width: usize, height: usiz
 /// - Within an iteration all pixels read the state before it; across iterations reads compose (a
 ///   pixel filled in iteration 2 may read one filled in 1).
 ///
+/// - `rules`: thin runs of up to `rules.thin_run` pixels are filled before the first iteration
+///   and seen known by it; after the last, the infilled disocclusions are blurred by
+///   `rules.far_blur` ([`blur_far_pixels`], with each pixel's distance the nearest known pixel
+///   along its row or column).
+///
 /// `P = iterations` must be at least 1 (`P = 1` is the last-iteration rule alone). The predictor
 /// is not called once no disocclusion pixel is left (so never for a frame without any).
 /// `prior` is the temporal prior, zeros where there is none.
@@ -225,7 +252,7 @@ pub fn infill_iteratively(
     holes: &HoleMask,
     prior: &ScaledPrior,
     iterations: usize,
-    thin_run: usize,
+    rules: InfillRules,
 ) -> Result<IterativeInfill, InfillError> {
     let start = Instant::now();
     let (w, h) = (warped.width(), warped.height());
@@ -281,7 +308,7 @@ pub fn infill_iteratively(
         let thin: Vec<Option<Pixel>> = remaining
             .par_iter()
             .with_min_len(PIXELS_PER_TASK)
-            .map(|&i| thin_run_source(&nearest, warped_depth, (i % w, i / w), thin_run))
+            .map(|&i| thin_run_source(&nearest, warped_depth, (i % w, i / w), rules.thin_run))
             .collect();
         let (mut wide, mut wide_thresholds) = (Vec::new(), Vec::new());
         for ((&i, &threshold), source) in remaining.iter().zip(&thresholds).zip(thin) {
@@ -383,6 +410,12 @@ pub fn infill_iteratively(
             sources[i] = [x - p.0 as f32, y - p.1 as f32];
         }
         out.composed_vectors = VectorField::from_pixels(w, h, sources);
+        let distances: Vec<f32> = disocclusions
+            .par_iter()
+            .with_min_len(PIXELS_PER_TASK)
+            .map(|&i| distance_to_known(&nearest, (i % w, i / w)))
+            .collect();
+        blur_far_pixels(&mut out.image, &disocclusions, &distances, rules.far_blur);
     } else {
         out.composed_vectors = VectorField::zeros(w, h);
     }
@@ -390,6 +423,12 @@ pub fn infill_iteratively(
     fill_new_regions_with(&mut out.image, holes, &nearest);
     out.other_time = start.elapsed().saturating_sub(out.predict_time);
     Ok(out)
+}
+
+/// The distance from `p` to the nearest known pixel along its row or column (infinite if none).
+fn distance_to_known(nearest: &NearestKnown, p: Pixel) -> f32 {
+    let distance = |q: Pixel| (q.0.abs_diff(p.0) + q.1.abs_diff(p.1)) as f32;
+    nearest.around(p).into_iter().flatten().map(distance).fold(f32::INFINITY, f32::min)
 }
 
 /// The frame-sized outputs before the first iteration: the warped frame, and the vectors (zero;
@@ -580,7 +619,13 @@ mod tests {
     /// rule cover.
     fn run(predictor: &dyn VectorPredictor, warp: &Warp, prior: &VectorField, iterations: usize) -> IterativeInfill {
         let prior = ScaledPrior::full_size(prior.clone());
-        infill_iteratively(predictor, &warp.image, &warp.depth, &warp.holes, &prior, iterations, 0).unwrap()
+        infill_iteratively(predictor, &warp.image, &warp.depth, &warp.holes, &prior, iterations, InfillRules::NONE)
+            .unwrap()
+    }
+
+    /// The thin-run rule without the far blur.
+    fn thin_only(thin_run: usize) -> InfillRules {
+        InfillRules { thin_run, far_blur: 0.0 }
     }
 
     fn zero_prior(warp: &Warp) -> VectorField {
@@ -1030,7 +1075,8 @@ mod tests {
             let predictor = Recording::new(to_nearest_known(Direction::Left));
             let prior = ScaledPrior::full_size(zero_prior(&warp));
             let out =
-                infill_iteratively(&predictor, &warp.image, &warp.depth, &warp.holes, &prior, 3, thin_run).unwrap();
+                infill_iteratively(&predictor, &warp.image, &warp.depth, &warp.holes, &prior, 3, thin_only(thin_run))
+                    .unwrap();
             assert_eq!(out.thin_runs, sliver.len(), "thin_run {thin_run}");
             assert_eq!(out.filled_per_iteration.iter().sum::<usize>(), 25, "the block is the passes'");
             for &(u, v) in &sliver {
@@ -1063,11 +1109,51 @@ mod tests {
         assert!(warp.holes.disocclusions().iter().filter(|&&h| h).count() > 10);
         let predictor = Recording::new(constant([1.0, 0.0]));
         let prior = ScaledPrior::full_size(zero_prior(&only_sliver));
-        let out =
-            infill_iteratively(&predictor, &only_sliver.image, &only_sliver.depth, &only_sliver.holes, &prior, 3, 3)
-                .unwrap();
+        let out = infill_iteratively(
+            &predictor,
+            &only_sliver.image,
+            &only_sliver.depth,
+            &only_sliver.holes,
+            &prior,
+            3,
+            thin_only(3),
+        )
+        .unwrap();
         assert_eq!((out.thin_runs, out.predictions, predictor.calls().len()), (10, 0, 0));
         assert_eq!(out.filled_per_iteration, [0, 0, 0]);
+    }
+
+    #[test]
+    fn the_far_blur_runs_after_the_passes_on_the_disocclusions_alone() {
+        let warp = sliver_and_block();
+        let prior = ScaledPrior::full_size(zero_prior(&warp));
+        let predictor = to_nearest_known(Direction::Right);
+        let infill = |far_blur| {
+            let rules = InfillRules { thin_run: 3, far_blur };
+            infill_iteratively(&predictor, &warp.image, &warp.depth, &warp.holes, &prior, 3, rules).unwrap()
+        };
+        let (sharp, blurred) = (infill(0.0), infill(0.5));
+        // The same passes, then the blur of every disocclusion pixel over the others, each at its
+        // distance to the nearest known pixel along its row or column.
+        let disocclusions = warp.holes.indices_of(PixelClass::Disocclusion);
+        let w = warp.image.width();
+        let known = |u: usize, v: usize| warp.holes.is_known(u, v);
+        let distances: Vec<f32> = disocclusions
+            .iter()
+            .map(|&i| {
+                let (u, v) = (i % w, i / w);
+                let along_row = (0..w).filter(|&x| known(x, v)).map(|x| x.abs_diff(u));
+                let along_column = (0..warp.image.height()).filter(|&y| known(u, y)).map(|y| y.abs_diff(v));
+                along_row.chain(along_column).min().map_or(f32::INFINITY, |d| d as f32)
+            })
+            .collect();
+        let mut expected = sharp.image.clone();
+        blur_far_pixels(&mut expected, &disocclusions, &distances, 0.5);
+        assert_eq!(blurred.image.pixels(), expected.pixels());
+        assert_eq!((blurred.vectors.pixels(), blurred.thin_runs), (sharp.vectors.pixels(), sharp.thin_runs));
+        // A pixel of the block 2 pixels from the known frame took a mean of its neighbours (rows
+        // copied from the right, the colour's green grows with the row).
+        assert!(blurred.image.get(9, 2)[1] > sharp.image.get(9, 2)[1] + 1e-3);
     }
 
     #[test]
@@ -1077,7 +1163,8 @@ mod tests {
         let ok = constant([1.0, 0.0]);
         let err =
             |result: Result<IterativeInfill, InfillError>| matches!(result, Err(InfillError::SizeMismatch { .. }));
-        let no_iterations = infill_iteratively(&ok, &warp.image, &warp.depth, &warp.holes, &prior, 0, 0);
+        let no_iterations =
+            infill_iteratively(&ok, &warp.image, &warp.depth, &warp.holes, &prior, 0, InfillRules::NONE);
         assert!(matches!(no_iterations, Err(InfillError::NoIterations)));
         assert!(err(infill_iteratively(
             &ok,
@@ -1086,18 +1173,34 @@ mod tests {
             &warp.holes,
             &ScaledPrior::zeros(3, 3, 1),
             3,
-            0
+            InfillRules::NONE
         )));
-        assert!(err(infill_iteratively(&ok, &warp.image, &DepthMap::zeros(8, 4), &warp.holes, &prior, 3, 0)));
+        assert!(err(infill_iteratively(
+            &ok,
+            &warp.image,
+            &DepthMap::zeros(8, 4),
+            &warp.holes,
+            &prior,
+            3,
+            InfillRules::NONE
+        )));
         let wrong_size = FnPredictor(|_: &VectorField, _: &DepthMap, _: &[bool]| VectorField::zeros(2, 2));
-        assert!(err(infill_iteratively(&wrong_size, &warp.image, &warp.depth, &warp.holes, &prior, 3, 0)));
+        assert!(err(infill_iteratively(
+            &wrong_size,
+            &warp.image,
+            &warp.depth,
+            &warp.holes,
+            &prior,
+            3,
+            InfillRules::NONE
+        )));
         struct Failing;
         impl VectorPredictor for Failing {
             fn predict(&self, _: &VectorField, _: &DepthMap, _: &[bool]) -> Result<VectorField, InfillError> {
                 Err(candle_core::Error::Msg("no model".into()).into())
             }
         }
-        let result = infill_iteratively(&Failing, &warp.image, &warp.depth, &warp.holes, &prior, 3, 0);
+        let result = infill_iteratively(&Failing, &warp.image, &warp.depth, &warp.holes, &prior, 3, InfillRules::NONE);
         assert!(matches!(&result, Err(InfillError::Network(e)) if e.to_string().contains("no model")), "{result:?}");
     }
 }

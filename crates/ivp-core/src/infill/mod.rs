@@ -12,12 +12,16 @@
 //! [`VectorPredictor`] trait, implemented in `inference`).
 
 pub mod classical;
+pub mod far_blur;
 pub mod iterative;
 pub mod rules;
 pub mod telea;
 
 pub use classical::{classical_infiller, BackgroundFill, CopyLast, Oracle, WarpOnly, CLASSICAL_METHODS};
-pub use iterative::{infill_iteratively, IterativeInfill, VectorPredictor, DEFAULT_ITERATIONS, MAX_WALK_MAGNITUDE};
+pub use far_blur::{blur_far_pixels, FAR_BLUR};
+pub use iterative::{
+    infill_iteratively, InfillRules, IterativeInfill, VectorPredictor, DEFAULT_ITERATIONS, MAX_WALK_MAGNITUDE,
+};
 pub use rules::{
     background_source, fill_disocclusions_background, fill_new_regions, new_region_source, thin_run_source, THIN_RUN,
 };

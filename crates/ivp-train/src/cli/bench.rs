@@ -107,7 +107,7 @@ impl FrameArgs {
         Ok(FrameCase {
             coverage: self.coverage.coverage()?,
             scale: self.coverage.scale,
-            thin_run: self.coverage.thin_run,
+            rules: self.coverage.rules(),
             frames,
             model: self.model,
             width_mult: self.width_mult,

@@ -1,9 +1,9 @@
 //! The flags every command that runs a model shares: how it covers a frame, at what scale, and
-//! which holes it leaves to the thin-run rule.
+//! and with which rules around the network's passes.
 
 use clap::Args;
 use ivp_core::inference::{Coverage, Scale, TileShape};
-use ivp_core::infill::THIN_RUN;
+use ivp_core::infill::{InfillRules, FAR_BLUR, THIN_RUN};
 
 /// How a trained model covers a frame: sparse tiles by default, `--dense` for one pass over the
 /// whole frame (for comparison; the results agree within the tolerance PERFORMANCE.md states).
@@ -29,6 +29,11 @@ pub struct CoverageArgs {
     /// fills every disocclusion, as in the paper; ALGORITHMS.md §6.5).
     #[arg(long, default_value_t = THIN_RUN)]
     pub thin_run: usize,
+    /// After the passes, blur each infilled disocclusion pixel over a window of this many pixels
+    /// per pixel of its distance to the known frame (0: no blur, as in the paper; ALGORITHMS.md
+    /// §6.5).
+    #[arg(long, default_value_t = FAR_BLUR, value_parser = parse_far_blur, allow_hyphen_values = true)]
+    pub far_blur: f32,
 }
 
 impl CoverageArgs {
@@ -39,5 +44,17 @@ impl CoverageArgs {
         let shape = TileShape::new(self.tile_core, self.tile_margin)
             .map_err(|e| anyhow::anyhow!("--tile-core/--tile-margin: {e}"))?;
         Ok(Coverage::Sparse(shape))
+    }
+
+    /// The rules around the passes.
+    pub fn rules(&self) -> InfillRules {
+        InfillRules { thin_run: self.thin_run, far_blur: self.far_blur }
+    }
+}
+
+fn parse_far_blur(s: &str) -> Result<f32, String> {
+    match s.parse::<f32>() {
+        Ok(strength) if strength.is_finite() && strength >= 0.0 => Ok(strength),
+        _ => Err(format!("--far-blur must be a finite number of 0 or more, not `{s}`")),
     }
 }

@@ -58,7 +58,7 @@ pub fn run_eval(args: EvalArgs, progress: bool) -> Result<()> {
         names: &args.methods,
         models: &args.model,
         iterations: args.iterations,
-        thin_run: args.coverage.thin_run,
+        rules: args.coverage.rules(),
         externals: &args.external,
         coverage: args.coverage.coverage()?,
         scale: args.coverage.scale,

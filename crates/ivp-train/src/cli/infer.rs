@@ -34,7 +34,7 @@ impl ModelArgs {
         Ok(ModelInfiller::new("ivp", net, self.iterations)
             .with_coverage(coverage)
             .with_scale(self.coverage.scale)
-            .with_thin_run(self.coverage.thin_run))
+            .with_rules(self.coverage.rules()))
     }
 }
 
