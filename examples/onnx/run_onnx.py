@@ -187,16 +187,15 @@ def blur_far_pixels(frame, hole, known, strength=FAR_BLUR):
     # Colour times weight, and weight: the infilled pixels weigh 1, every other pixel 0.
     level = np.concatenate([frame.transpose(1, 2, 0), np.ones(hole.shape + (1,), frame.dtype)], axis=2)
     level = (level * hole[..., None]).astype(np.float64)
+    own = frame[:, ys, xs].T
     means = []
     for j in range(BLUR_LEVELS):
         if j > 0:
             level = pool(level)
         read = read_level(smooth(level), j, ys, xs)
         weight = read[:, 3:]
-        own = frame[:, ys, xs].T
         means.append(np.where(weight > 1e-9, read[:, :3] / np.maximum(weight, 1e-30), own))
     means = np.stack(means)
-    own = frame[:, ys, xs].T
     t = np.clip(window, 0, 1)[:, None]
     out = (1 - t) * own + t * means[0]
     deep = window >= 1

@@ -20,7 +20,7 @@ use rayon::prelude::*;
 
 use crate::geometry::{DepthMap, HoleMask, KnownRead, NearestKnown, Pixel, PixelClass, RgbImage, VectorField};
 use crate::infill::far_blur::{blur_far_pixels, FAR_BLUR};
-use crate::infill::rules::{background_source, fill_new_regions_with, thin_run_source, THIN_RUN};
+use crate::infill::rules::{background_source, distance_to_known, fill_new_regions_with, thin_run_source, THIN_RUN};
 use crate::infill::InfillError;
 use crate::prior::{background_depth_thresholds_at, ScaledPrior};
 
@@ -239,8 +239,7 @@ fn size_error(what: &'static str, w: usize, h: usize, width: usize, height: usiz
 ///
 /// - `rules`: thin runs of up to `rules.thin_run` pixels are filled before the first iteration
 ///   and seen known by it; after the last, the infilled disocclusions are blurred by
-///   `rules.far_blur` ([`blur_far_pixels`], with each pixel's distance the nearest known pixel
-///   along its row or column).
+///   `rules.far_blur` ([`blur_far_pixels`], each pixel at its [`distance_to_known`]).
 ///
 /// `P = iterations` must be at least 1 (`P = 1` is the last-iteration rule alone). The predictor
 /// is not called once no disocclusion pixel is left (so never for a frame without any).
@@ -423,12 +422,6 @@ pub fn infill_iteratively(
     fill_new_regions_with(&mut out.image, holes, &nearest);
     out.other_time = start.elapsed().saturating_sub(out.predict_time);
     Ok(out)
-}
-
-/// The distance from `p` to the nearest known pixel along its row or column (infinite if none).
-fn distance_to_known(nearest: &NearestKnown, p: Pixel) -> f32 {
-    let distance = |q: Pixel| (q.0.abs_diff(p.0) + q.1.abs_diff(p.1)) as f32;
-    nearest.around(p).into_iter().flatten().map(distance).fold(f32::INFINITY, f32::min)
 }
 
 /// The frame-sized outputs before the first iteration: the warped frame, and the vectors (zero;

@@ -1,6 +1,7 @@
 //! The filling rules every method shares: the common new-region rule (ALGORITHMS.md §4.1), the `fill`
 //! rule (the background neighbour of a disocclusion), the thin-run rule of the iterative infilling
-//! (ALGORITHMS.md §6.5) and copies along integer vectors.
+//! (ALGORITHMS.md §6.5), the distance into a hole that the far blur grows with, and copies along
+//! integer vectors.
 
 use rayon::prelude::*;
 
@@ -34,6 +35,12 @@ pub fn new_region_source(nearest: &NearestKnown, p: Pixel) -> Option<Pixel> {
 /// left, right, up, down. A known pixel without a valid depth loses to any with one.
 pub fn background_source(nearest: &NearestKnown, warped_depth: &DepthMap, p: Pixel) -> Option<Pixel> {
     farthest(warped_depth, nearest.around(p).into_iter().flatten())
+}
+
+/// The distance from `p` to the nearest known pixel along its row or column (infinite if there is
+/// none): how far into a hole `p` lies, for the far blur.
+pub fn distance_to_known(nearest: &NearestKnown, p: Pixel) -> f32 {
+    nearest.around(p).into_iter().flatten().map(|q| distance(q, p) as f32).fold(f32::INFINITY, f32::min)
 }
 
 /// The default longest thin run (`--thin-run`): unknown runs of at most this many pixels between

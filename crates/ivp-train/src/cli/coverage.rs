@@ -1,5 +1,5 @@
 //! The flags every command that runs a model shares: how it covers a frame, at what scale, and
-//! and with which rules around the network's passes.
+//! with which rules around the network's passes.
 
 use clap::Args;
 use ivp_core::inference::{Coverage, Scale, TileShape};
