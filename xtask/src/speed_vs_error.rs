@@ -227,6 +227,7 @@ fn available_models(ivp: &Path, options: &Options) -> Result<Vec<(String, PathBu
             std::fs::write(&config, ablate::QUICK_RECIPE).with_context(|| format!("writing {}", config.display()))?;
             let mut cmd = Command::new(ivp);
             cmd.args(["--quiet", "train", "--synthetic", "--config"]).arg(&config).arg("--out").arg(&dir);
+            ablate::quick_validation(&mut cmd);
             run(cmd.stdout(Stdio::null()))?;
         }
         return Ok(vec![("0.125".to_string(), dir.join("model.safetensors"))]);

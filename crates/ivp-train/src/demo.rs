@@ -10,7 +10,10 @@ use ivp_core::infill::{classical_infiller, DEFAULT_ITERATIONS};
 use crate::checkpoint::{load_checkpoint, load_model};
 use crate::eval::Method;
 use crate::train::{latest_checkpoint, TrainConfig};
-use crate::validation::REPOSITORY_CLIPS;
+
+/// The repository's first four Blender clips (data/README.md), relative to the working folder:
+/// what the demo scores on when it runs from the repository's root.
+const BLENDER_DEV: &str = "data/blender-dev";
 
 /// Clips generated for scoring when the real ones are missing.
 const GENERATED_CLIPS: usize = 4;
@@ -53,7 +56,7 @@ pub fn evaluation_data(requested: Option<PathBuf>, run_dir: &Path) -> Result<Pat
     if let Some(dir) = requested {
         return Ok(dir);
     }
-    let blender_dev = PathBuf::from(REPOSITORY_CLIPS);
+    let blender_dev = PathBuf::from(BLENDER_DEV);
     if blender_dev.is_dir() {
         return Ok(blender_dev);
     }

@@ -37,7 +37,7 @@ use crate::distributed::{
     any_rank, batch_part, broadcast_from_root, f32_bytes, share_training_state, sum_gradients, sum_over_ranks,
     tensor_from_f32_bytes, ProcessGroup, SingleProcess,
 };
-use crate::eval::FIRST_TARGET;
+use crate::eval::{DEFAULT_TARGETS, FIRST_TARGET};
 use crate::guide::{Guide, GuideChoice, GuideSource, GuideTarget};
 use crate::metrics_csv::{d_mse_as_logged, LossWindow, MetricsLog, MetricsRow};
 use crate::plot::{write_loss_curve, Marks};
@@ -133,14 +133,18 @@ pub struct TrainConfig {
     pub validation_hd_clips: usize,
     /// A folder of real clips (12 frames or more) scored at every validation beside the generated
     /// ones, at `validation_targets`: of what a run prints, the figure closest to real renders,
-    /// and what chooses the model when `select_from` is below 1. By default the repository's
-    /// `data/blender-dev`, relative to the working folder (skipped with a warning when missing).
-    /// Keep it out of what you will judge the model on.
+    /// and what chooses the model when `select_from` is below 1. By default the repository's 12
+    /// Blender clips (`data`, relative to the working folder; skipped with a warning when
+    /// missing), scored as `ivp eval --data data` scores them: the recipe chooses nothing by them,
+    /// and a run prints the figure its model is judged by. With `select_from` below 1, point it
+    /// at clips you will not judge the model on (`cargo xtask ablate` uses `blender-dev-extra`
+    /// and judges on `blender-dev`).
     pub validation_data: Option<PathBuf>,
-    /// The targets scored in each clip of `validation_data`: by default every target of a 12-frame
-    /// clip, 3 to 11. The 4 clips of `data/blender-dev` at these 36 frames rank 25 trained models
-    /// as the 8 clips of `blender-dev-extra` do at Spearman 0.69, at targets 6, 8 and 10 alone
-    /// (`ivp eval`'s) at 0.48 (results/recipe-hd/README.md).
+    /// The targets scored in each clip of `validation_data`: by default `ivp eval`'s, 6, 8 and 10
+    /// (36 frames of the 12 clips). Every target from 3 to 11 of the 4 `blender-dev` clips
+    /// ranked 25 trained models as the 8 `blender-dev-extra` clips do at Spearman 0.69, their
+    /// targets 6, 8 and 10 at 0.48 (results/recipe-hd/README.md): for a choice by a few clips,
+    /// more targets help.
     pub validation_targets: Vec<usize>,
     /// Iterations of the test-time infilling in validation (ALGORITHMS.md §6.5).
     pub iterations: usize,
@@ -199,7 +203,7 @@ impl Default for TrainConfig {
             validation_clips: 8,
             validation_hd_clips: 2,
             validation_data: Some(PathBuf::from(REPOSITORY_CLIPS)),
-            validation_targets: (3..=11).collect(),
+            validation_targets: DEFAULT_TARGETS.to_vec(),
             iterations: ivp_core::infill::DEFAULT_ITERATIONS,
             checkpoint_every: 250,
             keep_checkpoints: 9,
@@ -267,11 +271,11 @@ pub struct TrainOverrides {
     #[serde(skip_serializing_if = "Option::is_none")]
     pub validate_every: Option<u64>,
     /// A folder of real clips to validate on besides the generated frames (12 frames or more
-    /// each), e.g. data/blender-dev.
+    /// each; default: the repository's, `data`).
     #[arg(long)]
     #[serde(skip_serializing_if = "Option::is_none")]
     pub validation_data: Option<PathBuf>,
-    /// The targets scored in each clip of --validation-data, comma-separated (default 3 to 11).
+    /// The targets scored in each clip of --validation-data, comma-separated (default 6,8,10).
     #[arg(long, value_delimiter = ',')]
     #[serde(skip_serializing_if = "Option::is_none")]
     pub validation_targets: Option<Vec<usize>>,

@@ -12,7 +12,9 @@
 //! Why real renders: over the checkpoints and seeds of the recipe, the generated frames rank models
 //! no better than chance against the Blender clips (Spearman about 0 at 320x240), while four
 //! Blender clips rank them as eight others do (0.82; results/recipe-hd/README.md). Differences
-//! between good models are in failures generated scenes rarely have.
+//! between good models are in failures generated scenes rarely have. The recipe scores all 12 of
+//! the repository's clips as `ivp eval --data data` does, so what a run prints for its model is
+//! the figure the README judges models by (results/recipe-hd/README.md, "Validation").
 //!
 //! In data-parallel training each rank scores its part of the frames, and every rank gets the
 //! scores of the whole set.
@@ -70,10 +72,11 @@ impl ValidationReport {
     }
 }
 
-/// The repository's real Blender clips (data/README.md), relative to the working folder: the
-/// recipe validates on them (`TrainConfig::validation_data`) and `ivp demo` scores on them. They
-/// are found when ivp runs from the repository's root, as the README's commands do.
-pub const REPOSITORY_CLIPS: &str = "data/blender-dev";
+/// The repository's real Blender clips (data/README.md: the 12 clips of `blender-dev` and
+/// `blender-dev-extra`), relative to the working folder: the recipe validates on them
+/// (`TrainConfig::validation_data`). They are found when ivp runs from the repository's root, as
+/// the README's commands do.
+pub const REPOSITORY_CLIPS: &str = "data";
 
 /// Which frames make the set: generated clips of a seed of their own.
 #[derive(Clone, Debug, PartialEq, Eq)]
@@ -266,26 +269,27 @@ mod tests {
         assert_eq!(ranks, vec![one, one], "two ranks score their halves and both get the whole set's scores");
     }
 
-    /// The repository's Blender clips.
-    fn blender_dev() -> PathBuf {
-        PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../data/blender-dev")
+    /// The repository's folder of Blender clips (`REPOSITORY_CLIPS` seen from the repository's root).
+    fn repository_clips() -> PathBuf {
+        PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..").join(REPOSITORY_CLIPS)
     }
 
     #[test]
     fn real_clips_are_scored_as_ivp_eval_scores_them() {
-        let clip = blender_dev().join("clip_002");
-        let targets: Vec<usize> = (3..=11).collect();
-        let config =
-            ValidationConfig { seed: 7, clips: 0, hd_clips: 0, data: Some(clip.clone()), targets: targets.clone() };
+        // The recipe's real clips: the 12 of `data`, at `ivp eval`'s targets.
+        let recipe = crate::train::TrainConfig::default().validation_config();
+        let data = repository_clips();
+        let config = ValidationConfig { clips: 0, hd_clips: 0, data: Some(data.clone()), ..recipe };
         let set = ValidationSet::new(&config).unwrap();
-        assert_eq!(set.len(), 9, "targets 3 to 11 of one clip");
+        assert_eq!(set.len(), 36, "targets 6, 8 and 10 of 12 clips");
         let fill = set.score_fill(&SingleProcess).unwrap();
         assert_eq!((fill.small, fill.large), (None, None));
-        // `ivp eval --data clip_002 --methods fill` pools the same frames the same way.
+        // `ivp eval --data data --methods fill` pools the same frames the same way.
         let methods = [crate::eval::Method::Internal(classical_infiller("fill").unwrap())];
-        let eval = crate::eval::evaluate(&clip, &targets, &methods, false).unwrap();
+        let eval = crate::eval::evaluate(&data, &config.targets, &methods, false).unwrap();
+        assert_eq!(eval.clips.len(), 12);
         let want = eval.methods[0].d_mse.unwrap();
-        let got = fill.real.expect("clip_002 has disocclusions").d_mse;
+        let got = fill.real.expect("the clips have disocclusions").d_mse;
         assert!((got - want).abs() <= 1e-9 * want, "validation {got} against eval {want}");
 
         let bad = |data: PathBuf| ValidationSet::new(&ValidationConfig { data: Some(data), ..config.clone() });
