@@ -134,8 +134,8 @@ pub struct TrainConfig {
     /// A folder of real clips (12 frames or more) scored at every validation beside the generated
     /// ones, at `validation_targets`: of what a run prints, the figure closest to real renders,
     /// and what chooses the model when `select_from` is below 1. By default the repository's 12
-    /// Blender clips (`data`, relative to the working folder; skipped with a warning when
-    /// missing), scored as `ivp eval --data data` scores them: the recipe chooses nothing by them,
+    /// Blender clips (`data`, relative to the working folder; skipped with a warning when it is
+    /// missing or holds no clip), scored as `ivp eval --data data` scores them: the recipe chooses nothing by them,
     /// and a run prints the figure its model is judged by. With `select_from` below 1, point it
     /// at clips you will not judge the model on (`cargo xtask ablate` uses `blender-dev-extra`
     /// and judges on `blender-dev`).

@@ -29,7 +29,7 @@ use ivp_core::nn::model::IvpNet;
 use ivp_core::{relative_pose, warp_forward};
 use ivp_data::samples::ClipFrames;
 use ivp_data::scene::{clip_seed, render_clip};
-use ivp_data::{find_clips, Clip, SceneParams};
+use ivp_data::{find_clips, Clip, DataError, SceneParams};
 use rayon::prelude::*;
 
 use crate::distributed::{even_part, ProcessGroup};
@@ -129,23 +129,12 @@ impl ValidationSet {
             items.extend(targets.iter().map(|&target| Item { size, clip: clips.len(), target }));
             clips.push(ClipFrames { frames: clip.frames, poses: clip.poses, intrinsics: clip.intrinsics });
         }
-        let missing_default = |dir: &PathBuf| dir.as_path() == Path::new(REPOSITORY_CLIPS) && !dir.exists();
-        if let Some(dir) = config.data.as_ref().filter(|dir| missing_default(dir)) {
-            tracing::warn!(
-                "no real clips to validate on: {} is not in the working folder (run from the repository's \
-                 root, or pass --validation-data DIR); the run validates on generated frames alone",
-                dir.display()
-            );
-        }
-        if let Some(dir) = config.data.as_ref().filter(|dir| !missing_default(dir)) {
-            let paths = find_clips(dir).with_context(|| format!("validation data {}", dir.display()))?;
-            for path in paths {
-                let clip = Clip::open(&path)?;
-                check_targets(&clip, &config.targets).context("validation data")?;
-                let targets = config.targets.iter().map(|&target| Item { size: Size::Real, clip: clips.len(), target });
-                items.extend(targets);
-                clips.push(ClipFrames::load(&clip)?);
-            }
+        for path in real_clips(config.data.as_deref())? {
+            let clip = Clip::open(&path)?;
+            check_targets(&clip, &config.targets).context("validation data")?;
+            let targets = config.targets.iter().map(|&target| Item { size: Size::Real, clip: clips.len(), target });
+            items.extend(targets);
+            clips.push(ClipFrames::load(&clip)?);
         }
         Ok(Self { clips, items })
     }
@@ -213,6 +202,26 @@ impl ValidationSet {
     }
 }
 
+/// The clips of `data`. The default, [`REPOSITORY_CLIPS`], is relative to the working folder:
+/// outside the repository's root it may be missing, or another folder of that name without clips,
+/// and the run then validates on generated frames alone, with a warning. A folder given on purpose
+/// must hold clips.
+fn real_clips(data: Option<&Path>) -> Result<Vec<PathBuf>> {
+    let Some(dir) = data else { return Ok(Vec::new()) };
+    match find_clips(dir) {
+        Ok(paths) => Ok(paths),
+        Err(DataError::Io { .. } | DataError::NoClip { .. }) if dir == Path::new(REPOSITORY_CLIPS) => {
+            tracing::warn!(
+                "no real clips to validate on: the working folder has no {}/ of clips (run from the repository's \
+                 root, or pass --validation-data DIR); the run validates on generated frames alone",
+                dir.display()
+            );
+            Ok(Vec::new())
+        }
+        Err(e) => Err(e).with_context(|| format!("validation data {}", dir.display())),
+    }
+}
+
 /// Every rank's `(D-MSE, D-SSIM)` of its part of a set of `count` frames, in the order of the set.
 fn gather_scores(group: &dyn ProcessGroup, count: usize, part: &[Option<(f64, f64)>]) -> Vec<Option<(f64, f64)>> {
     if group.size() == 1 {
@@ -276,12 +285,14 @@ mod tests {
 
     #[test]
     fn real_clips_are_scored_as_ivp_eval_scores_them() {
-        // The recipe's real clips: the 12 of `data`, at `ivp eval`'s targets.
+        // The recipe's real clips: the 12 of `data`, at `ivp eval`'s targets (one of them here, to
+        // keep the test short; the pooling over clips is what is checked).
         let recipe = crate::train::TrainConfig::default().validation_config();
+        assert_eq!((recipe.data.as_deref(), &recipe.targets[..]), (Some(Path::new("data")), &[6, 8, 10][..]));
         let data = repository_clips();
-        let config = ValidationConfig { clips: 0, hd_clips: 0, data: Some(data.clone()), ..recipe };
+        let config = ValidationConfig { clips: 0, hd_clips: 0, data: Some(data.clone()), targets: vec![8], ..recipe };
         let set = ValidationSet::new(&config).unwrap();
-        assert_eq!(set.len(), 36, "targets 6, 8 and 10 of 12 clips");
+        assert_eq!(set.len(), 12, "target 8 of 12 clips");
         let fill = set.score_fill(&SingleProcess).unwrap();
         assert_eq!((fill.small, fill.large), (None, None));
         // `ivp eval --data data --methods fill` pools the same frames the same way.
@@ -299,8 +310,18 @@ mod tests {
         let short = empty.path().join("short");
         let generated = render_clip(3, &SceneParams { frames: 8, ..SceneParams::default() });
         ivp_data::write_clip(&short, &generated.frames, &generated.poses, Some(&generated.intrinsics)).unwrap();
-        let message = format!("{:#}", bad(short).err().expect("8 frames cannot give targets 8 and 10"));
+        let message = format!("{:#}", bad(short).err().expect("8 frames cannot give target 8"));
         assert!(message.contains("short: target 8 needs frames 5..=8"), "{message}");
+    }
+
+    #[test]
+    fn only_the_default_folder_may_be_missing() {
+        // Tests run in crates/ivp-train, which has no `data` folder: the recipe's default is skipped.
+        assert!(!Path::new(REPOSITORY_CLIPS).exists());
+        assert_eq!(real_clips(Some(Path::new(REPOSITORY_CLIPS))).unwrap(), Vec::<PathBuf>::new());
+        assert_eq!(real_clips(None).unwrap(), Vec::<PathBuf>::new());
+        let message = format!("{:#}", real_clips(Some(Path::new("no-such-folder"))).unwrap_err());
+        assert!(message.contains("validation data no-such-folder"), "{message}");
     }
 
     #[test]
