@@ -188,10 +188,7 @@ fn train(ivp: &Path, sweep: &Sweep, variant: &str, seed: u64, dir: &Path) -> Res
     let mut cmd = Command::new(ivp);
     cmd.args(["--quiet", "train", "--synthetic", "--variant", variant, "--seed", &seed.to_string(), "--out"]).arg(dir);
     if sweep.quick {
-        let config = sweep.out.join("quick.toml");
-        std::fs::write(&config, QUICK_RECIPE).with_context(|| format!("writing {}", config.display()))?;
-        cmd.arg("--config").arg(config);
-        quick_validation(&mut cmd);
+        use_quick_recipe(&mut cmd, &sweep.out.join("quick.toml"))?;
     }
     if let Some(steps) = sweep.steps {
         cmd.args(["--steps", &steps.to_string()]);
@@ -207,14 +204,18 @@ fn train(ivp: &Path, sweep: &Sweep, variant: &str, seed: u64, dir: &Path) -> Res
 }
 
 /// The smoke test's recipe: seconds, not minutes.
-pub const QUICK_RECIPE: &str = "width_mult = 0.125\nsteps = 4\nbatch = 2\ncrop = 32\nguide_steps = 2\n\
+const QUICK_RECIPE: &str = "width_mult = 0.125\nsteps = 4\nbatch = 2\ncrop = 32\nguide_steps = 2\n\
                             validation_clips = 0\nvalidation_hd_clips = 0\nlog_every = 1\nvalidate_every = 0\ncheckpoint_every = 2\n";
 
-/// The smoke test's real-clip validation: one frame of one committed clip. The recipe's 36 frames
-/// took most of a quick run's 30 s in the debug build.
-pub fn quick_validation(cmd: &mut Command) {
+/// Makes `cmd` (an `ivp train`) run the smoke test's recipe, written to `config`, validated on one
+/// frame of one committed clip: the recipe's 36 real frames took most of a quick run's 30 s in the
+/// debug build.
+pub fn use_quick_recipe(cmd: &mut Command, config: &Path) -> Result<()> {
+    std::fs::write(config, QUICK_RECIPE).with_context(|| format!("writing {}", config.display()))?;
     let clip = crate::root().join("data/blender-dev/clip_002");
+    cmd.arg("--config").arg(config);
     cmd.arg("--validation-data").arg(clip).args(["--validation-targets", "6"]);
+    Ok(())
 }
 
 /// Minutes of training of a finished run: the last `elapsed_s` of its `metrics.csv`.

@@ -223,11 +223,9 @@ fn available_models(ivp: &Path, options: &Options) -> Result<Vec<(String, PathBu
     if options.quick {
         let dir = options.work.join("quick-model");
         if !dir.join("model.safetensors").is_file() {
-            let config = options.work.join("quick.toml");
-            std::fs::write(&config, ablate::QUICK_RECIPE).with_context(|| format!("writing {}", config.display()))?;
             let mut cmd = Command::new(ivp);
-            cmd.args(["--quiet", "train", "--synthetic", "--config"]).arg(&config).arg("--out").arg(&dir);
-            ablate::quick_validation(&mut cmd);
+            cmd.args(["--quiet", "train", "--synthetic", "--out"]).arg(&dir);
+            ablate::use_quick_recipe(&mut cmd, &options.work.join("quick.toml"))?;
             run(cmd.stdout(Stdio::null()))?;
         }
         return Ok(vec![("0.125".to_string(), dir.join("model.safetensors"))]);

@@ -135,10 +135,10 @@ pub struct TrainConfig {
     /// ones, at `validation_targets`: of what a run prints, the figure closest to real renders,
     /// and what chooses the model when `select_from` is below 1. By default the repository's 12
     /// Blender clips (`data`, relative to the working folder; skipped with a warning when it is
-    /// missing or holds no clip), scored as `ivp eval --data data` scores them: the recipe chooses nothing by them,
-    /// and a run prints the figure its model is judged by. With `select_from` below 1, point it
-    /// at clips you will not judge the model on (`cargo xtask ablate` uses `blender-dev-extra`
-    /// and judges on `blender-dev`).
+    /// missing or holds no clip), scored as `ivp eval --data data` scores them: the recipe
+    /// chooses nothing by them, and a run prints the figure its model is judged by. With
+    /// `select_from` below 1, point it at clips you will not judge the model on (`cargo xtask
+    /// ablate` validates on `blender-dev-extra` and judges on `blender-dev`).
     pub validation_data: Option<PathBuf>,
     /// The targets scored in each clip of `validation_data`: by default `ivp eval`'s, 6, 8 and 10
     /// (36 frames of the 12 clips). Every target from 3 to 11 of the 4 `blender-dev` clips

@@ -14,7 +14,8 @@
 //! Blender clips rank them as eight others do (0.82; results/recipe-hd/README.md). Differences
 //! between good models are in failures generated scenes rarely have. The recipe scores all 12 of
 //! the repository's clips as `ivp eval --data data` does, so what a run prints for its model is
-//! the figure the README judges models by (results/recipe-hd/README.md, "Validation").
+//! the figure the README judges models by (results/recipe-hd/README.md,
+//! "Validation on the repository's 12 clips").
 //!
 //! In data-parallel training each rank scores its part of the frames, and every rank gets the
 //! scores of the whole set.
