@@ -20,6 +20,20 @@ fn train(config: &Path, out: &Path, resume: bool) -> Command {
     cmd
 }
 
+/// The step of the latest complete checkpoint of a run folder (0 without one); a checkpoint being
+/// written is a hidden temporary file until its rename.
+fn last_checkpoint_step(run: &Path) -> u64 {
+    let Ok(entries) = std::fs::read_dir(run.join("checkpoints")) else { return 0 };
+    entries
+        .flatten()
+        .filter_map(|e| {
+            let name = e.file_name().to_string_lossy().into_owned();
+            name.strip_prefix("step_")?.strip_suffix(".safetensors")?.parse().ok()
+        })
+        .max()
+        .unwrap_or(0)
+}
+
 /// Every tensor of a model file, by name, as raw bytes.
 fn tensors(path: &Path) -> Vec<(String, Vec<u8>)> {
     let bytes = std::fs::read(path).unwrap();
@@ -42,8 +56,10 @@ fn a_run_killed_at_random_moments_and_resumed_ends_bit_identical() {
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let full_time = started.elapsed();
 
-    // Kill at random moments of the second half of a whole run's length (its first half is mostly
-    // start-up: scenes and the validation set), then let the last attempt finish.
+    // Kill each of the first attempts at a random moment shortly after it has saved a checkpoint of
+    // its own (its next steps, or the next checkpoint's write), then let the last attempt finish.
+    // Waiting for progress rather than for a share of the whole run's time keeps the kills from
+    // missing a resumed run, which skips the steps already done and can end before such a share.
     let killed = dir.path().join("killed");
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
     let (mut kills, mut resumes) = (0, 0);
@@ -61,16 +77,21 @@ fn a_run_killed_at_random_moments_and_resumed_ends_bit_identical() {
             let _ = std::fs::remove_dir_all(&killed);
         }
         resumes += usize::from(has_checkpoint);
+        let first_step = last_checkpoint_step(&killed);
         let mut child = train(&config, &killed, has_checkpoint).spawn().unwrap();
-        let wait = if attempt < 6 { full_time.mul_f64(rng.random_range(0.5..1.0)) } else { Duration::from_secs(600) };
-        let deadline = Instant::now() + wait;
+        let mut deadline = Instant::now() + Duration::from_secs(600);
+        let mut kill_armed = attempt < 6;
         let mut finished = None;
         while Instant::now() < deadline {
             if let Some(status) = child.try_wait().unwrap() {
                 finished = Some(status);
                 break;
             }
-            std::thread::sleep(Duration::from_millis(5));
+            if kill_armed && last_checkpoint_step(&killed) > first_step {
+                kill_armed = false;
+                deadline = Instant::now() + full_time.mul_f64(rng.random_range(0.0..0.1));
+            }
+            std::thread::sleep(Duration::from_millis(2));
         }
         match finished {
             Some(status) => {
