@@ -241,9 +241,9 @@ fn build_ivp(root: &Path) -> Result<PathBuf> {
 }
 
 /// Builds the `ivp` binary in the dev profile (what the tests already built) and returns its path.
-/// It is built as `cargo test --workspace` builds it, beside every test target: the tests'
-/// dependencies (tract's) enable features of shared crates (getrandom's, bytes'), and a build of
-/// the binary alone would resolve them without, then recompile candle and the ivp crates (90 s).
+/// It is built as `cargo test --workspace` builds it, beside every test target: a build of the
+/// binary alone resolves features without the tests' dev-dependencies, so the day one of them
+/// enables a feature of a shared crate it would recompile candle and the ivp crates (90 s).
 fn build_ivp_debug(root: &Path) -> Result<PathBuf> {
     let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
     run(Command::new(cargo).current_dir(root).args(["build", "--workspace", "--tests"]))?;
