@@ -214,6 +214,7 @@ fn bench_against_torch(threads: usize, runs: usize) -> Result<()> {
         [("train", vec!["train", "--runs", &runs_arg]), ("infer", vec!["infer", "--runs", "3"])];
     println!("| case | ivp median ms | PyTorch median ms | ivp / PyTorch |");
     println!("|---|---|---|---|");
+    let mut machine = None;
     for (name, args) in cases {
         let ours =
             json_line(Command::new(&ivp).args(["--threads", &threads_arg, "bench"]).args(&args).arg("--profile"))?;
@@ -222,7 +223,11 @@ fn bench_against_torch(threads: usize, runs: usize) -> Result<()> {
         println!("| {} | {a:.0} | {b:.0} | {:.2} |", theirs["case"].as_str().unwrap_or(name), a / b);
         eprintln!("{name}: ivp {ours}");
         eprintln!("{name}: torch {theirs}");
+        let text = |key: &str| ours["machine"][key].as_str().unwrap_or("unknown").to_string();
+        machine = Some(format!("{} ({})", text("cpu"), text("vectors")));
     }
+    // The ratio is what transfers between machines; the times hold for this CPU only.
+    println!("\n{threads} threads on {}", machine.unwrap_or_default());
     Ok(())
 }
 

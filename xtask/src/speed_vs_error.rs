@@ -138,17 +138,19 @@ pub fn speed_vs_error(ivp: &Path, options: &Options) -> Result<()> {
     let models = available_models(ivp, options)?;
     let mut measurements = Vec::new();
     let mut clip_counts = Vec::new();
+    let mut machine = String::new();
     for dataset in &datasets {
         println!("speed vs error: {} ({})", dataset.name, dataset.resolution());
-        let (rows, clips) = measure_dataset(ivp, options, dataset, &models)?;
+        let (rows, clips, measured_on) = measure_dataset(ivp, options, dataset, &models)?;
         measurements.extend(rows);
         clip_counts.push(clips);
+        machine = measured_on;
     }
     mark_pareto_fronts(&mut measurements);
 
     let header = ReportHeader {
         command: &options.command,
-        machine: machine_description(),
+        machine,
         threads: options.threads,
         load_average: load.split_whitespace().take(3).collect::<Vec<_>>().join(" "),
     };
@@ -252,15 +254,16 @@ fn measure_dataset(
     options: &Options,
     dataset: &Dataset,
     models: &[(String, PathBuf)],
-) -> Result<(Vec<Measurement>, usize)> {
+) -> Result<(Vec<Measurement>, usize, String)> {
     let report = eval(ivp, options, dataset, &CLASSICAL.join(","), &[], &[], "classical")?;
     let clips = report["clips"].as_array().map_or(0, Vec::len);
+    let machine = machine_description(&report);
     let mut rows = CLASSICAL
         .iter()
         .map(|m| measurement(&report, dataset, m, m, Setting::Classical))
         .collect::<Result<Vec<_>>>()?;
     if models.is_empty() {
-        return Ok((rows, clips));
+        return Ok((rows, clips, machine));
     }
     let names: Vec<String> = models.iter().map(|(w, _)| model_name(w)).collect();
     let specs: Vec<String> = models.iter().zip(&names).map(|((_, f), n)| format!("{n}={}", f.display())).collect();
@@ -280,7 +283,7 @@ fn measure_dataset(
             }
         }
     }
-    Ok((rows, clips))
+    Ok((rows, clips, machine))
 }
 
 /// Runs `ivp eval` on `dataset` and returns its JSON report.
@@ -455,19 +458,11 @@ fn to_markdown(
     out
 }
 
-/// The processor's model name and the number of logical cores.
-fn machine_description() -> String {
-    let cpuinfo = std::fs::read_to_string("/proc/cpuinfo").unwrap_or_default();
-    let model = cpu_model(&cpuinfo).unwrap_or_else(|| "an unknown CPU".to_string());
+/// The machine an `ivp eval` report names (its CPU and widest vectors), and the logical cores.
+fn machine_description(report: &serde_json::Value) -> String {
+    let text = |key: &str| report["machine"][key].as_str().unwrap_or("unknown").to_string();
     let cores = std::thread::available_parallelism().map_or(0, |n| n.get());
-    format!("{model}, {cores} cores")
-}
-
-/// The `model name` of the first processor in `/proc/cpuinfo`'s text.
-fn cpu_model(cpuinfo: &str) -> Option<String> {
-    cpuinfo
-        .lines()
-        .find_map(|l| l.split_once(':').filter(|(k, _)| k.trim() == "model name").map(|(_, v)| v.trim().to_string()))
+    format!("{} ({}), {cores} cores", text("cpu"), text("vectors"))
 }
 
 /// One panel per dataset; a series per classical method and per model width and coverage (its
@@ -603,10 +598,10 @@ mod tests {
     }
 
     #[test]
-    fn the_machine_is_named_from_cpuinfo() {
-        let cpuinfo = "processor\t: 0\nvendor_id\t: GenuineIntel\nmodel name\t: Intel(R) Xeon(R) CPU @ 2.20GHz\n";
-        assert_eq!(cpu_model(cpuinfo).as_deref(), Some("Intel(R) Xeon(R) CPU @ 2.20GHz"));
-        assert_eq!(cpu_model(""), None);
+    fn the_machine_is_the_one_ivp_eval_names() {
+        let report = serde_json::json!({"machine": {"cpu": "Intel(R) Xeon(R) CPU @ 2.20GHz", "vectors": "avx512"}});
+        assert!(machine_description(&report).starts_with("Intel(R) Xeon(R) CPU @ 2.20GHz (avx512), "));
+        assert!(machine_description(&serde_json::json!({})).starts_with("unknown (unknown), "));
     }
 
     #[test]
@@ -648,6 +643,7 @@ mod tests {
         assert!(rows.iter().any(|r| r[10] == "true"), "no point on the front: {csv}");
         let md = std::fs::read_to_string(options.out.join("speed_vs_error.md")).unwrap();
         assert!(md.contains("`cargo xtask bench --speed-vs-error --quick`") && md.contains("--threads 2"), "{md}");
+        assert!(md.contains(" (avx2), ") || md.contains(" (avx512), "), "the machine with its vectors: {md}");
         let svg = std::fs::read_to_string(options.out.join("speed_vs_error.svg")).unwrap();
         assert!(svg.contains("Pareto front") && svg.contains("generated-96x72"));
     }

@@ -18,6 +18,7 @@ use serde::Serialize;
 
 use crate::distributed::SingleProcess;
 use crate::guide::Guide;
+use crate::machine::Machine;
 use crate::train::training_step;
 
 /// One benchmark's result: the keys of `torch_reference.py`, plus where the time went.
@@ -28,6 +29,8 @@ pub struct BenchReport {
     pub min_ms: f64,
     pub runs: usize,
     pub threads: usize,
+    /// The CPU the times were measured on.
+    pub machine: Machine,
     pub width_mult: f64,
     pub ivp: &'static str,
     /// Milliseconds per run by operator (ivp's own operators; "other" is everything else), when
@@ -181,6 +184,7 @@ fn report(case: String, times: &[Duration], width_mult: f64, profile: Option<BTr
         min_ms: round(ms[0]),
         runs: ms.len(),
         threads: rayon::current_num_threads(),
+        machine: Machine::this(),
         width_mult,
         ivp: env!("CARGO_PKG_VERSION"),
         profile: profile.map(|p| p.into_iter().map(|(k, v)| (k, round(v))).collect()),

@@ -22,6 +22,7 @@ use ivp_core::nn::ops::profile;
 use crate::bench::{operator_breakdown, OperatorTimes};
 use crate::checkpoint::load_model;
 use crate::eval::check_targets;
+use crate::machine::Machine;
 
 /// Where the frames come from.
 #[derive(Clone, Debug)]
@@ -86,6 +87,8 @@ pub struct FrameReport {
     pub scale: usize,
     pub runs: usize,
     pub threads: usize,
+    /// The CPU the times were measured on.
+    pub machine: Machine,
     /// Disocclusions as a fraction of the frame.
     pub hole_fraction: f64,
     /// Tiles the network ran on over the iterations of one frame (0 when dense).
@@ -249,6 +252,7 @@ fn time_target(case: &FrameCase, model: &ModelInfiller, clip: &ClipFrames, targe
         scale: case.scale.factor(height),
         runs: case.runs,
         threads: rayon::current_num_threads(),
+        machine: Machine::this(),
         hole_fraction,
         tiles,
         pixels_read_fraction,

@@ -18,6 +18,7 @@ use ivp_data::{find_clips, read_rgb, Clip, Frame};
 use serde::Serialize;
 
 use crate::checkpoint::load_model;
+use crate::machine::Machine;
 use crate::progress::progress_bar;
 
 /// The targets of a 12-frame clip (ALGORITHMS.md §5).
@@ -164,6 +165,9 @@ pub struct EvalReport {
     /// Every frame's D-MSE per method, in the order evaluated: the pooled figures hide the frame
     /// where a method loses.
     pub per_frame: Vec<FrameRecord>,
+    /// Where `ms_per_frame` was measured: the CPU, and the threads of the run.
+    pub machine: Machine,
+    pub threads: usize,
 }
 
 /// The scores of one target frame.
@@ -363,7 +367,14 @@ pub fn evaluate_observed(
             Method::External { name, .. } => a.report(name, false, false),
         })
         .collect();
-    Ok(EvalReport { clips: names, targets: sorted_targets, methods: reports, per_frame })
+    Ok(EvalReport {
+        clips: names,
+        targets: sorted_targets,
+        methods: reports,
+        per_frame,
+        machine: Machine::this(),
+        threads: rayon::current_num_threads(),
+    })
 }
 
 /// Writes `report` as JSON to `path` (atomically), creating its folder.
@@ -544,12 +555,14 @@ pub fn table_cells(report: &EvalReport) -> Vec<[String; 7]> {
 pub fn table_footer(report: &EvalReport) -> String {
     let m = &report.methods[0];
     format!(
-        "{} clips, targets {:?}: {} frames, {} with disocclusions (D- averages), {} TC tracks",
+        "{} clips, targets {:?}: {} frames, {} with disocclusions (D- averages), {} TC tracks; times on {}, {} threads",
         report.clips.len(),
         report.targets,
         m.frames,
         m.d_frames,
-        m.tc_tracks
+        m.tc_tracks,
+        report.machine,
+        report.threads
     )
 }
 

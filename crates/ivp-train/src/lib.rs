@@ -21,6 +21,7 @@
 //! - `infer`: a trained model on one target (`ivp infer`) or on every other frame (`ivp upsample`).
 //! - `bench`: one training step or one inference timed on random inputs (`ivp bench train|infer`).
 //! - `bench_frame`: one frame end to end, generated or each target of a clip, by stage (`ivp bench frame`).
+//! - `machine`: the CPU a time was measured on, reported beside every time.
 //! - `plot`: `loss.png` of a run.
 //! - `sheet`: labelled contact sheets, flow colours, and the sheet of a training sample.
 //! - `progress`: the progress bar every long-running command shows.
@@ -36,6 +37,7 @@ pub mod eval;
 pub mod export_warps;
 pub mod guide;
 pub mod infer;
+pub mod machine;
 pub mod metrics_csv;
 pub mod onnx;
 pub mod plot;

@@ -95,6 +95,10 @@ fn exported_targets_score_like_the_internal_method() {
     }
     assert!(a["ms_per_frame"].as_f64().unwrap() > 0.0);
     assert!(a["ms_by_stage"]["warp"].as_f64().is_some());
+    // The times' machine, in the JSON and under the table.
+    let vectors = scores["machine"]["vectors"].as_str().unwrap();
+    assert!(scores["threads"].as_u64().unwrap() >= 1);
+    assert!(table.contains(&format!("times on {} ({vectors})", scores["machine"]["cpu"].as_str().unwrap())), "{table}");
 }
 
 #[test]
@@ -503,6 +507,9 @@ fn train_export_eval_infer_and_upsample_from_the_command_line() {
         let read = frame["pixels_read_fraction"].as_f64().unwrap();
         assert!(read > 0.0 && read < 3.0, "sparse tiles read a part of the frame per pass: {json}");
         assert!(frame["d_mse"].as_f64().is_some() && frame["d_mse_fill"].as_f64().is_some(), "{json}");
+        // Every time names the CPU it was measured on (the network runs twice as fast with AVX-512).
+        assert!(["avx512", "avx2"].contains(&frame["machine"]["vectors"].as_str().unwrap()), "{json}");
+        assert!(!frame["machine"]["cpu"].as_str().unwrap().is_empty(), "{json}");
     }
     let totals: Vec<f64> = frames.iter().map(|f| f["stages"]["total"]["median_ms"].as_f64().unwrap()).collect();
     let over = &report["total_over_frames"];

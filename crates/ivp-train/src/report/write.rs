@@ -124,6 +124,7 @@ mod tests {
 
     use super::*;
     use crate::eval::{FrameObserver, FrameOutputs, FrameRecord, MethodReport};
+    use crate::machine::Machine;
     use crate::report::collect::{MethodInfo, ReportOptions};
 
     fn method(name: &str, d_mse: f64, ms: Option<f64>) -> MethodReport {
@@ -186,7 +187,14 @@ mod tests {
             method("model-a", 0.0, Some(20.0)),
             method("model-b", 9007.0, Some(30.0)),
         ];
-        let report = EvalReport { clips: vec!["clip_<a>".to_string()], targets: vec![6, 8], methods, per_frame };
+        let report = EvalReport {
+            clips: vec!["clip_<a>".to_string()],
+            targets: vec![6, 8],
+            methods,
+            per_frame,
+            machine: Machine { cpu: "Test CPU".to_string(), vectors: "avx2" },
+            threads: 2,
+        };
         (report, collector)
     }
 
