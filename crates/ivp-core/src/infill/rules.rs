@@ -307,4 +307,32 @@ mod tests {
         depth.set(3, 1, [f32::NAN]);
         assert_eq!(thin_run_source(&nearest, &depth, (1, 1), 3), Some((0, 1)));
     }
+
+    #[test]
+    fn copies_along_vectors_read_both_components_and_skip_zero_vectors() {
+        let source = labelled(5, 4);
+        let mut image = RgbImage::zeros(5, 4);
+        let mut vectors = VectorField::zeros(5, 4);
+        vectors.set(0, 0, [1.0, 2.0]);
+        vectors.set(3, 3, [-2.0, -3.0]);
+        vectors.set(4, 1, [0.0, 0.6]); // rounds to the pixel below
+        copy_along_vectors(&mut image, &source, &vectors);
+        assert_eq!(image.get(0, 0), source.get(1, 2));
+        assert_eq!(image.get(3, 3), source.get(1, 0));
+        assert_eq!(image.get(4, 1), source.get(4, 2));
+        assert_eq!(image.get(2, 1), [0.0; 3], "a zero vector copies nothing");
+    }
+
+    #[test]
+    #[should_panic(expected = "differ in size")]
+    fn new_regions_refuse_a_mask_of_another_size() {
+        fill_new_regions(&mut RgbImage::zeros(4, 2), &classes_from_rows(&["KNK", "KKN"]));
+    }
+
+    #[test]
+    #[should_panic(expected = "differ in size")]
+    fn fill_refuses_a_mask_of_another_size() {
+        let holes = classes_from_rows(&["KDK", "KKD"]);
+        fill_disocclusions_background(&mut RgbImage::zeros(4, 2), &Image::filled(4, 2, [1.0]), &holes);
+    }
 }
