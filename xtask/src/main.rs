@@ -223,12 +223,17 @@ fn bench_against_torch(threads: usize, runs: usize) -> Result<()> {
         println!("| {} | {a:.0} | {b:.0} | {:.2} |", theirs["case"].as_str().unwrap_or(name), a / b);
         eprintln!("{name}: ivp {ours}");
         eprintln!("{name}: torch {theirs}");
-        let text = |key: &str| ours["machine"][key].as_str().unwrap_or("unknown").to_string();
-        machine = Some(format!("{} ({})", text("cpu"), text("vectors")));
+        machine = Some(machine_named_in(&ours));
     }
     // The ratio is what transfers between machines; the times hold for this CPU only.
     println!("\n{threads} threads on {}", machine.unwrap_or_default());
     Ok(())
+}
+
+/// The machine a JSON report of `ivp` (bench or eval) names: `AMD EPYC (avx2)`.
+fn machine_named_in(report: &serde_json::Value) -> String {
+    let text = |key: &str| report["machine"][key].as_str().unwrap_or("unknown").to_string();
+    format!("{} ({})", text("cpu"), text("vectors"))
 }
 
 /// Builds the `ivp` binary in release and returns its path.

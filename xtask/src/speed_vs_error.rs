@@ -460,9 +460,8 @@ fn to_markdown(
 
 /// The machine an `ivp eval` report names (its CPU and widest vectors), and the logical cores.
 fn machine_description(report: &serde_json::Value) -> String {
-    let text = |key: &str| report["machine"][key].as_str().unwrap_or("unknown").to_string();
     let cores = std::thread::available_parallelism().map_or(0, |n| n.get());
-    format!("{} ({}), {cores} cores", text("cpu"), text("vectors"))
+    format!("{}, {cores} cores", crate::machine_named_in(report))
 }
 
 /// One panel per dataset; a series per classical method and per model width and coverage (its

@@ -810,7 +810,7 @@ fn checkpoint_path(checkpoints: &Path, step: u64) -> PathBuf {
 }
 
 /// The step of a checkpoint file named as [`checkpoint_path`] names them.
-fn checkpoint_step(path: &Path) -> Option<u64> {
+pub fn checkpoint_step(path: &Path) -> Option<u64> {
     let name = path.file_name()?.to_str()?;
     name.strip_prefix("step_")?.strip_suffix(".safetensors")?.parse().ok()
 }

@@ -5,6 +5,7 @@ use std::path::Path;
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
+use ivp_train::train::{checkpoint_step, latest_checkpoint};
 use rand::{Rng, SeedableRng};
 
 const RECIPE: &str = "width_mult = 0.125\nsteps = 12\nbatch = 2\ncrop = 32\nguide_steps = 4\n\
@@ -23,15 +24,8 @@ fn train(config: &Path, out: &Path, resume: bool) -> Command {
 /// The step of the latest complete checkpoint of a run folder (0 without one); a checkpoint being
 /// written is a hidden temporary file until its rename.
 fn last_checkpoint_step(run: &Path) -> u64 {
-    let Ok(entries) = std::fs::read_dir(run.join("checkpoints")) else { return 0 };
-    entries
-        .flatten()
-        .filter_map(|e| {
-            let name = e.file_name().to_string_lossy().into_owned();
-            name.strip_prefix("step_")?.strip_suffix(".safetensors")?.parse().ok()
-        })
-        .max()
-        .unwrap_or(0)
+    let latest = latest_checkpoint(&run.join("checkpoints")).ok().flatten();
+    latest.and_then(|path| checkpoint_step(&path)).unwrap_or(0)
 }
 
 /// Every tensor of a model file, by name, as raw bytes.
