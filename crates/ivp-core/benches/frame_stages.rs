@@ -1,5 +1,5 @@
 //! The per-frame stages of inference at 1920x1080 (`ivp bench frame` times them end to end): the
-//! temporal prior, the background depth threshold, the new-region rule, the classical infillers,
+//! temporal prior, the background depth threshold, the new-region rule, the far blur, the classical infillers,
 //! the tile plan of sparse inference, what scaled inference adds around the network (the prior on
 //! shrunk frames; shrinking the tiles' inputs and growing their vectors), and one sparse pass of
 //! the recipe's network (width 0.25, untrained weights) at factor 2.
@@ -13,7 +13,10 @@ use criterion::{criterion_group, criterion_main, Criterion};
 use glam::{DMat4, DVec3};
 use ivp_core::geometry::{FrameView, NearestKnown};
 use ivp_core::inference::{plan_tiles, Coverage, NetworkFrame, NetworkPredictor, TileShape};
-use ivp_core::infill::{classical_infiller, fill_new_regions, InfillContext, VectorPredictor};
+use ivp_core::infill::rules::distance_to_known;
+use ivp_core::infill::{
+    blur_far_pixels, classical_infiller, fill_new_regions, InfillContext, VectorPredictor, FAR_BLUR,
+};
 use ivp_core::nn::model::{IvpNet, ModelConfig, Variant};
 use ivp_core::prior::{background_depth_threshold, scaled_target_prior, target_prior};
 use ivp_core::{relative_pose, warp_forward, DepthMap, Image, Intrinsics, RgbImage, VectorField, WorldToCamera};
@@ -53,6 +56,16 @@ fn bench_stages(c: &mut Criterion) {
         b.iter(|| {
             let mut image = warp.image.clone();
             fill_new_regions(&mut image, &warp.holes);
+            image
+        })
+    });
+    let disocclusions: Vec<usize> = (0..w * h).filter(|&i| holes[i]).collect();
+    let nearest = NearestKnown::new(w, h, &known);
+    let distances: Vec<f32> = disocclusions.iter().map(|&i| distance_to_known(&nearest, (i % w, i / w))).collect();
+    group.bench_function("far_blur", |b| {
+        b.iter(|| {
+            let mut image = warp.image.clone();
+            blur_far_pixels(&mut image, &disocclusions, &distances, FAR_BLUR);
             image
         })
     });

@@ -438,43 +438,119 @@ pub fn background_depth_threshold(known: &[bool], depth: &DepthMap) -> Vec<Optio
 /// [`background_depth_threshold`] of the pixels `at` only (row-major indices, none of them known),
 /// in their order, with the [`NearestKnown`] of the known mask already built: a frame's holes are
 /// a small part of it, and its other pixels would only be skipped.
+///
+/// The pixels of a run of unknown pixels along a row meet the same known pixels left and right
+/// of them, and those of a run along a column the same above and below: the walk from the first
+/// known pixel beyond is made once and reused by the next pixels that start from it (within a
+/// chunk of `at`; the chunks only share the work out). With the integer sort of
+/// [`threshold_from_depths`], the `background_depth_threshold` bench at 1080p takes 26% less
+/// time (median of four alternated runs each: 18.1 -> 13.4 ms).
 pub fn background_depth_thresholds_at(nearest: &NearestKnown, depth: &DepthMap, at: &[usize]) -> Vec<Option<f32>> {
     let w = depth.width();
     assert!(nearest.width() == w && nearest.height() == depth.height(), "nearest-known size differs from the depth");
-    at.par_iter().with_min_len(256).map(|&i| threshold_at(nearest, depth, (i % w, i / w))).collect()
+    // Few chunks, each with a walk per column and direction to reuse.
+    let chunk = at.len().div_ceil(4 * rayon::current_num_threads()).max(256);
+    let per_chunk: Vec<Vec<Option<f32>>> = at
+        .par_chunks(chunk)
+        .map(|pixels| {
+            let mut walks = Walks::new(w);
+            pixels.iter().map(|&i| walks.threshold_at(nearest, depth, (i % w, i / w))).collect()
+        })
+        .collect();
+    per_chunk.concat()
 }
 
-fn threshold_at(nearest: &NearestKnown, depth: &DepthMap, p: Pixel) -> Option<f32> {
-    let mut depths = [0f32; 4 * THRESHOLD_PIXELS_PER_DIRECTION];
-    let mut count = 0;
-    for dir in Direction::ALL {
-        let mut taken = 0;
-        let mut next = nearest.beyond(p, dir);
-        while taken < THRESHOLD_PIXELS_PER_DIRECTION {
+/// The valid depths met walking from a known pixel along a direction, up to
+/// [`THRESHOLD_PIXELS_PER_DIRECTION`] of them.
+#[derive(Clone, Copy)]
+struct Walk {
+    from: Option<Pixel>,
+    count: usize,
+    depths: [f32; THRESHOLD_PIXELS_PER_DIRECTION],
+}
+
+impl Walk {
+    const NONE: Walk = Walk { from: None, count: 0, depths: [0.0; THRESHOLD_PIXELS_PER_DIRECTION] };
+
+    /// The walk from `from` (itself included) towards `dir`, skipping unknown pixels and pixels
+    /// without a valid depth.
+    fn from(nearest: &NearestKnown, depth: &DepthMap, from: Pixel, dir: Direction) -> Walk {
+        let mut walk = Walk { from: Some(from), ..Walk::NONE };
+        let mut next = Some(from);
+        while walk.count < THRESHOLD_PIXELS_PER_DIRECTION {
             let Some(q) = next else { break };
             let z = depth.at(q.0, q.1);
             if is_valid_depth(z) {
-                depths[count] = z;
-                count += 1;
-                taken += 1;
+                walk.depths[walk.count] = z;
+                walk.count += 1;
             }
-            // The next known pixel along the ray, wherever it is.
             next = nearest.beyond(q, dir);
         }
+        walk
     }
-    threshold_from_depths(&mut depths[..count])
+
+    fn depths(&self) -> &[f32] {
+        &self.depths[..self.count]
+    }
+}
+
+/// The walks last made, to reuse: left and right (the pixel before in a row-major scan starts
+/// from the same known pixels when it is in the same run), and up and down per column.
+struct Walks {
+    left: Walk,
+    right: Walk,
+    up: Vec<Walk>,
+    down: Vec<Walk>,
+}
+
+impl Walks {
+    fn new(width: usize) -> Self {
+        Self { left: Walk::NONE, right: Walk::NONE, up: vec![Walk::NONE; width], down: vec![Walk::NONE; width] }
+    }
+
+    fn threshold_at(&mut self, nearest: &NearestKnown, depth: &DepthMap, p: Pixel) -> Option<f32> {
+        let mut depths = [0f32; 4 * THRESHOLD_PIXELS_PER_DIRECTION];
+        let mut count = 0;
+        for dir in Direction::ALL {
+            let kept = match dir {
+                Direction::Left => &mut self.left,
+                Direction::Right => &mut self.right,
+                Direction::Up => &mut self.up[p.0],
+                Direction::Down => &mut self.down[p.0],
+            };
+            let first = nearest.beyond(p, dir);
+            let walk = match first {
+                None => &Walk::NONE,
+                Some(q) => {
+                    if kept.from != first {
+                        *kept = Walk::from(nearest, depth, q, dir);
+                    }
+                    &*kept
+                }
+            };
+            depths[count..count + walk.count].copy_from_slice(walk.depths());
+            count += walk.count;
+        }
+        threshold_from_depths(&depths[..count])
+    }
 }
 
 /// `(mean of the k smallest + mean of the k largest) / 2` with `k = min(5, count / 4)`, for more
-/// than 4 depths; `None` otherwise.
-fn threshold_from_depths(depths: &mut [f32]) -> Option<f32> {
+/// than 4 depths; `None` otherwise. The depths are valid (finite and positive), so their bits
+/// order as their values do, and integers sort faster than floats by `total_cmp` (on a 1080p
+/// Blender frame, the sort by `total_cmp` was about a third of the thresholds' time).
+fn threshold_from_depths(depths: &[f32]) -> Option<f32> {
     if depths.len() <= 4 {
         return None;
     }
-    depths.sort_unstable_by(f32::total_cmp);
-    let k = (depths.len() / 4).min(THRESHOLD_MAX_EXTREMES);
-    let mean = |values: &[f32]| values.iter().sum::<f32>() / values.len() as f32;
-    Some((mean(&depths[..k]) + mean(&depths[depths.len() - k..])) / 2.0)
+    debug_assert!(depths.iter().all(|&z| is_valid_depth(z)), "a threshold of invalid depths");
+    let mut bits = [0u32; 4 * THRESHOLD_PIXELS_PER_DIRECTION];
+    let bits = &mut bits[..depths.len()];
+    bits.iter_mut().zip(depths).for_each(|(b, z)| *b = z.to_bits());
+    bits.sort_unstable();
+    let k = (bits.len() / 4).min(THRESHOLD_MAX_EXTREMES);
+    let mean = |values: &[u32]| values.iter().map(|&b| f32::from_bits(b)).sum::<f32>() / values.len() as f32;
+    Some((mean(&bits[..k]) + mean(&bits[bits.len() - k..])) / 2.0)
 }
 
 #[cfg(test)]
@@ -826,6 +902,86 @@ mod tests {
         let depths = [depth.at(0, 2), depth.at(1, 2), depth.at(4, 2), depth.at(2, 0), depth.at(2, 4)];
         let (lo, hi) = (depths.iter().copied().fold(f32::MAX, f32::min), depths.iter().copied().fold(0.0, f32::max));
         assert_eq!(background_depth_threshold(&known, &depth)[12], Some((lo + hi) / 2.0));
+    }
+
+    #[test]
+    fn thresholds_with_shared_walks_equal_a_walk_per_pixel() {
+        use rand::{Rng, SeedableRng};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(11);
+        for (w, h) in [(1, 1), (9, 1), (1, 9), (37, 23), (300, 40)] {
+            // Wide and tall blocks, scattered pixels, and invalid depths among the known pixels.
+            let known: Vec<bool> = (0..w * h)
+                .map(|i| {
+                    let (u, v) = (i % w, i / w);
+                    !((u % 17 < 6 && v % 11 < 7) || rng.random_bool(0.1))
+                })
+                .collect();
+            let depths: Vec<[f32; 1]> = (0..w * h)
+                .map(|_| {
+                    [match rng.random_range(0..10) {
+                        0 => f32::NAN,
+                        1 => 0.0,
+                        2 => f32::INFINITY,
+                        _ => rng.random_range(0.1..50.0),
+                    }]
+                })
+                .collect();
+            let depth = Image::from_pixels(w, h, depths);
+            // Every unknown pixel but some (as new regions are unknown and not asked for).
+            let at: Vec<usize> = (0..w * h).filter(|&i| !known[i] && i % 5 != 0).collect();
+            let one_step_walks = |i: usize| {
+                let mut depths = Vec::new();
+                for dir in Direction::ALL {
+                    let (mut taken, mut q) = (0, dir.step((i % w, i / w), w, h));
+                    while let (Some((u, v)), true) = (q, taken < THRESHOLD_PIXELS_PER_DIRECTION) {
+                        let z = depth.at(u, v);
+                        if known[v * w + u] && is_valid_depth(z) {
+                            depths.push(z);
+                            taken += 1;
+                        }
+                        q = dir.step((u, v), w, h);
+                    }
+                }
+                threshold_from_depths(&depths)
+            };
+            let want: Vec<Option<u32>> = at.iter().map(|&i| one_step_walks(i).map(f32::to_bits)).collect();
+            let nearest = NearestKnown::new(w, h, &known);
+            let got: Vec<Option<u32>> = background_depth_thresholds_at(&nearest, &depth, &at)
+                .into_iter()
+                .map(|t| t.map(f32::to_bits))
+                .collect();
+            assert_eq!(got, want, "{w}x{h}");
+            assert!(want.iter().any(Option::is_some) || w * h < 100, "{w}x{h}: no threshold tested");
+        }
+    }
+
+    #[test]
+    fn threshold_sorts_depths_by_their_bits_as_by_their_values() {
+        use rand::{Rng, SeedableRng};
+        // The formula over depths sorted as floats, summed in the same order.
+        let by_values = |depths: &[f32]| {
+            let mut sorted = depths.to_vec();
+            sorted.sort_by(f32::total_cmp);
+            let k = (sorted.len() / 4).min(THRESHOLD_MAX_EXTREMES);
+            let mean = |v: &[f32]| v.iter().sum::<f32>() / v.len() as f32;
+            (sorted.len() > 4).then(|| (mean(&sorted[..k]) + mean(&sorted[sorted.len() - k..])) / 2.0)
+        };
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
+        for count in 0..=4 * THRESHOLD_PIXELS_PER_DIRECTION {
+            for _ in 0..200 {
+                // Subnormal to huge depths, and ties.
+                let depths: Vec<f32> = (0..count)
+                    .map(|_| match rng.random_range(0..4) {
+                        0 => f32::from_bits(rng.random_range(1..0x0080_0000)),
+                        1 => rng.random_range(1e30..f32::MAX),
+                        2 => 2.5,
+                        _ => rng.random_range(0.01..100.0),
+                    })
+                    .collect();
+                let (got, want) = (threshold_from_depths(&depths), by_values(&depths));
+                assert_eq!(got.map(f32::to_bits), want.map(f32::to_bits), "{depths:?}");
+            }
+        }
     }
 
     #[test]

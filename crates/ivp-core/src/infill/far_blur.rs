@@ -57,10 +57,14 @@ pub fn blur_far_pixels(image: &mut RgbImage, pixels: &[usize], distances: &[f32]
     let levels_needed = if deepest < 1.0 { 1 } else { (top_level(deepest) as usize + 2).min(LEVELS) };
     let mut smoothed: Vec<Grid> = Vec::with_capacity(levels_needed);
     if levels_needed > 1 {
-        let mut level = Grid::first_pooled(image, pixels);
+        // The cells that hold pixels, level by level: each listed once per run along a row.
+        let positions: Vec<(usize, usize)> = pixels.iter().map(|&i| (i % w, i / w)).collect();
+        let mut cells = halved(&positions);
+        let mut level = Grid::first_pooled(image, pixels, &positions, &cells);
         smoothed.push(level.smoothed());
-        for j in 2..levels_needed {
-            level = level.pooled(pixels, w, j);
+        for _ in 2..levels_needed {
+            cells = halved(&cells);
+            level = level.pooled(&cells);
             smoothed.push(level.smoothed());
         }
     }
@@ -111,6 +115,14 @@ const MARGIN: usize = 3;
 /// Side of the square tiles a level keeps, in cells (a power of two larger than [`MARGIN`]).
 const TILE: usize = 16;
 
+/// The cells of the next level that hold the cells `cells`, in their order, without repeating
+/// the last one listed.
+fn halved(cells: &[(usize, usize)]) -> Vec<(usize, usize)> {
+    let mut next: Vec<(usize, usize)> = cells.iter().map(|&(x, y)| (x / 2, y / 2)).collect();
+    next.dedup();
+    next
+}
+
 /// The pyramid level, fractional, of a window of `window >= 1` pixels.
 fn top_level(window: f32) -> f32 {
     window.log2().min((LEVELS - 1) as f32)
@@ -143,14 +155,13 @@ struct Grid {
 const ABSENT: u32 = u32::MAX;
 
 impl Grid {
-    /// The empty level `j` (`width x height` cells) with the tiles near the pixels (indices into a
-    /// frame `frame_width` wide) kept.
-    fn near_pixels(width: usize, height: usize, pixels: &[usize], frame_width: usize, j: usize) -> Grid {
+    /// An empty level of `width x height` cells with the tiles near the cells `cells` (those
+    /// that hold pixels) kept.
+    fn near_pixels(width: usize, height: usize, cells: &[(usize, usize)]) -> Grid {
         let (tiles_x, tiles_y) = (width.div_ceil(TILE), height.div_ceil(TILE));
         let mut tile_index = vec![ABSENT; tiles_x * tiles_y];
         let mut tiles = Vec::new();
-        for &i in pixels {
-            let (x, y) = ((i % frame_width) >> j, (i / frame_width) >> j);
+        for &(x, y) in cells {
             let (x0, x1) = (x.saturating_sub(MARGIN) / TILE, (x + MARGIN).min(width - 1) / TILE);
             let (y0, y1) = (y.saturating_sub(MARGIN) / TILE, (y + MARGIN).min(height - 1) / TILE);
             for ty in y0..=y1 {
@@ -202,15 +213,19 @@ impl Grid {
         });
     }
 
-    /// Level 1 of the pixels `pixels` of `image` (weight 1 each, every other pixel 0): each
-    /// pixel adds a quarter of itself to its cell, twice that in the last row or column of an odd
-    /// side (which its cell reads twice).
-    fn first_pooled(image: &RgbImage, pixels: &[usize]) -> Grid {
+    /// Level 1 of the pixels `pixels` of `image` (weight 1 each, every other pixel 0), at
+    /// `positions` and in the level's `cells`: each pixel adds a quarter of itself to its cell,
+    /// twice that in the last row or column of an odd side (which its cell reads twice).
+    fn first_pooled(
+        image: &RgbImage,
+        pixels: &[usize],
+        positions: &[(usize, usize)],
+        cells: &[(usize, usize)],
+    ) -> Grid {
         let (w, h) = (image.width(), image.height());
-        let mut level = Grid::near_pixels(w.div_ceil(2), h.div_ceil(2), pixels, w, 1);
+        let mut level = Grid::near_pixels(w.div_ceil(2), h.div_ceil(2), cells);
         let repeats = |x: usize, n: usize| if n % 2 == 1 && x == n - 1 { 2.0 } else { 1.0 };
-        for &i in pixels {
-            let (u, v) = (i % w, i / w);
+        for (&i, &(u, v)) in pixels.iter().zip(positions) {
             let weight = 0.25 * repeats(u, w) * repeats(v, h);
             let [r, g, b] = image.pixels()[i];
             let k = level.slot(u / 2, v / 2).expect("a pixel's own cell is kept");
@@ -220,9 +235,9 @@ impl Grid {
         level
     }
 
-    /// Level `j`, the next level of this one: 2x2 cells averaged.
-    fn pooled(&self, pixels: &[usize], frame_width: usize, j: usize) -> Grid {
-        let mut next = Grid::near_pixels(self.width.div_ceil(2), self.height.div_ceil(2), pixels, frame_width, j);
+    /// The next level of this one, whose `cells` hold pixels: 2x2 cells averaged.
+    fn pooled(&self, cells: &[(usize, usize)]) -> Grid {
+        let mut next = Grid::near_pixels(self.width.div_ceil(2), self.height.div_ceil(2), cells);
         next.fill_cells(|x, y| {
             let children = [(0, 0), (1, 0), (0, 1), (1, 1)].map(|(dx, dy)| self.get(2 * x + dx, 2 * y + dy));
             std::array::from_fn(|c| 0.25 * children.iter().map(|child| child[c]).sum::<f32>())
@@ -231,21 +246,44 @@ impl Grid {
     }
 
     /// The level smoothed by [`KERNEL`] along rows, then columns.
+    ///
+    /// Tile by tile: the tile and the two cells around it are read once (positions clamped to
+    /// the level, cells of tiles not kept 0), smoothed along the rows of that block, then along
+    /// the columns. A cell outside the kept tiles is at least [`MARGIN`] cells from every
+    /// infilled pixel's cell, more than the kernel's reach, so its smoothing along rows is 0, as
+    /// a cell not kept reads: the same sums, added in the same order, as two passes over whole
+    /// levels.
     fn smoothed(&self) -> Grid {
-        let along = |source: &Grid, dx: isize, dy: isize| {
-            let mut out = source.zeros_like();
-            out.fill_cells(|x, y| {
+        const REACH: usize = KERNEL.len() / 2;
+        const SIDE: usize = TILE + 2 * REACH;
+        let mut out = self.zeros_like();
+        let tiles = &self.tiles;
+        out.cells.par_chunks_mut(TILE * TILE).zip(tiles).for_each(|(cells, &(tx, ty))| {
+            let (x0, y0) = ((tx * TILE) as isize - REACH as isize, (ty * TILE) as isize - REACH as isize);
+            let mut block = [[[0.0f32; 4]; SIDE]; SIDE];
+            for (r, row) in block.iter_mut().enumerate() {
+                for (c, cell) in row.iter_mut().enumerate() {
+                    *cell = self.get(x0 + c as isize, y0 + r as isize);
+                }
+            }
+            let mut along_rows = [[[0.0f32; 4]; TILE]; SIDE];
+            for (row, source) in along_rows.iter_mut().zip(&block) {
+                for (x, cell) in row.iter_mut().enumerate() {
+                    for (t, weight) in KERNEL.iter().enumerate() {
+                        cell.iter_mut().zip(source[x + t]).for_each(|(s, v)| *s += weight * v);
+                    }
+                }
+            }
+            for (k, cell) in cells.iter_mut().enumerate() {
+                let (x, y) = (k % TILE, k / TILE);
                 let mut sum = [0.0f32; 4];
                 for (t, weight) in KERNEL.iter().enumerate() {
-                    let offset = t as isize - 2;
-                    let value = source.get(x + offset * dx, y + offset * dy);
-                    sum.iter_mut().zip(value).for_each(|(s, v)| *s += weight * v);
+                    sum.iter_mut().zip(along_rows[y + t][x]).for_each(|(s, v)| *s += weight * v);
                 }
-                sum
-            });
-            out
-        };
-        along(&along(self, 1, 0), 0, 1)
+                *cell = sum;
+            }
+        });
+        out
     }
 
     /// The mean colour of level `j` at full-size pixel `(u, v)` (bilinear, position clamped to the
