@@ -11,7 +11,7 @@ static GLOBAL: mimalloc::MiMalloc = mimalloc::MiMalloc;
 
 use criterion::{criterion_group, criterion_main, Criterion};
 use glam::{DMat4, DVec3};
-use ivp_core::geometry::{FrameView, NearestKnown};
+use ivp_core::geometry::{FrameView, NearestKnown, PixelClass};
 use ivp_core::inference::{plan_tiles, Coverage, NetworkFrame, NetworkPredictor, TileShape};
 use ivp_core::infill::rules::distance_to_known;
 use ivp_core::infill::{
@@ -59,7 +59,7 @@ fn bench_stages(c: &mut Criterion) {
             image
         })
     });
-    let disocclusions: Vec<usize> = (0..w * h).filter(|&i| holes[i]).collect();
+    let disocclusions = warp.holes.indices_of(PixelClass::Disocclusion);
     let nearest = NearestKnown::new(w, h, &known);
     let distances: Vec<f32> = disocclusions.iter().map(|&i| distance_to_known(&nearest, (i % w, i / w))).collect();
     group.bench_function("far_blur", |b| {
