@@ -369,8 +369,9 @@ pub fn prior_from_last(
 /// the form the model reads at inference (`inference::ModelInfiller`).
 ///
 /// Why: the prior's warps and searches cost as much as the rest of a 1080p frame together, while
-/// the network that reads it sees the frame shrunk anyway; measured on the shrunk frames, the
-/// prior also looks like the ones the network was trained with (frames of a few hundred rows).
+/// the network that reads it sees the frame shrunk anyway (by the same factor or, by default
+/// at 1080p, by half of it: `inference::PriorScale`); measured on the shrunk frames, the prior
+/// also looks like the ones the network was trained with (frames of a few hundred rows).
 /// Only what the prior reads is shrunk: the depths of frames `n - 2` and `n` (warped whole), and
 /// the colours of frame `n` near the holes of the warp `n - 2 -> n` (the fictitious vectors'
 /// patches, [`GROUND_TRUTH_REACH`]); frame `n - 2`'s colours are not read at all.

@@ -8,7 +8,7 @@ use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
 use anyhow::{ensure, Context, Result};
-use ivp_core::inference::{Coverage, ModelInfiller, Scale};
+use ivp_core::inference::{Coverage, ModelInfiller, PriorScale, Scale};
 use ivp_core::infill::{classical_infiller, InfillContext, InfillRules};
 use ivp_core::metrics::score_frame;
 use ivp_core::nn::model::{IvpNet, ModelConfig, Variant};
@@ -48,6 +48,8 @@ pub struct FrameCase {
     pub coverage: Coverage,
     /// The scale the model runs at.
     pub scale: Scale,
+    /// The scale its temporal prior is measured at.
+    pub prior_scale: PriorScale,
     /// Timed runs, after one untimed warm-up run.
     pub runs: usize,
     /// Seed of the untrained weights.
@@ -85,6 +87,8 @@ pub struct FrameReport {
     pub tile_margin: Option<usize>,
     /// The factor the frame was shrunk by before the network saw it.
     pub scale: usize,
+    /// The factor the frames were shrunk by before the temporal prior was measured on them.
+    pub prior_scale: usize,
     pub runs: usize,
     pub threads: usize,
     /// The CPU the times were measured on.
@@ -174,6 +178,7 @@ fn model_of(case: &FrameCase) -> Result<ModelInfiller> {
     Ok(ModelInfiller::new("ivp", net, case.iterations)
         .with_coverage(case.coverage)
         .with_scale(case.scale)
+        .with_prior_scale(case.prior_scale)
         .with_rules(case.rules))
 }
 
@@ -250,6 +255,7 @@ fn time_target(case: &FrameCase, model: &ModelInfiller, clip: &ClipFrames, targe
         tile_core,
         tile_margin,
         scale: case.scale.factor(height),
+        prior_scale: case.prior_scale.factor(case.scale.factor(height)),
         runs: case.runs,
         threads: rayon::current_num_threads(),
         machine: Machine::this(),

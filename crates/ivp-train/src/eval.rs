@@ -10,7 +10,7 @@ use std::time::{Duration, Instant};
 use anyhow::{bail, ensure, Context, Result};
 use indicatif::ProgressBar;
 use ivp_core::geometry::FrameView;
-use ivp_core::inference::{Coverage, ModelInfiller, Scale};
+use ivp_core::inference::{Coverage, ModelInfiller, PriorScale, Scale};
 use ivp_core::infill::{classical_infiller, InfillContext, InfillRules, Infiller, CLASSICAL_METHODS};
 use ivp_core::metrics::{score_frame, tc_track_variances, FrameScores, TcSequence};
 use ivp_core::{relative_pose, warp_forward, RgbImage, VectorField, Warp};
@@ -60,6 +60,8 @@ pub struct MethodSpecs<'a> {
     pub coverage: Coverage,
     /// The scale the models run at.
     pub scale: Scale,
+    /// The scale the models' temporal prior is measured at.
+    pub prior_scale: PriorScale,
 }
 
 /// The methods `specs` names: those of `names` in their order, then the models `names` leaves
@@ -97,6 +99,7 @@ fn load_models(specs: &MethodSpecs<'_>) -> Result<Vec<ModelInfiller>> {
             Ok(ModelInfiller::new(name, net, specs.iterations)
                 .with_coverage(specs.coverage)
                 .with_scale(specs.scale)
+                .with_prior_scale(specs.prior_scale)
                 .with_rules(specs.rules))
         })
         .collect()
@@ -606,6 +609,7 @@ mod tests {
             externals,
             coverage: Coverage::Dense,
             scale: Scale::Factor(1),
+            prior_scale: PriorScale::Auto,
         })
     }
 

@@ -9,7 +9,7 @@ pub mod scaled;
 pub mod tiles;
 
 pub use predictor::{Coverage, NetworkPredictor};
-pub use scaled::{NetworkFrame, Scale};
+pub use scaled::{NetworkFrame, PriorScale, Scale};
 pub use tiles::{plan_tiles, Tile, TileShape};
 
 use std::time::{Duration, Instant};
@@ -153,14 +153,16 @@ pub struct ModelInfiller {
     rules: InfillRules,
     coverage: Coverage,
     scale: Scale,
+    prior_scale: PriorScale,
 }
 
 impl ModelInfiller {
     /// `iterations` is P of ALGORITHMS.md §6.5 (ignored by the intensity variant). Sparse, at
     /// the automatic scale and with the recipe's rules around the passes by default.
     pub fn new(name: impl Into<String>, net: IvpNet, iterations: usize) -> Self {
-        let (rules, coverage, scale) = (InfillRules::default(), Coverage::default(), Scale::default());
-        Self { name: name.into(), net, iterations, rules, coverage, scale }
+        let (rules, coverage) = (InfillRules::default(), Coverage::default());
+        let (scale, prior_scale) = (Scale::default(), PriorScale::default());
+        Self { name: name.into(), net, iterations, rules, coverage, scale, prior_scale }
     }
 
     /// The same model with other rules around the passes (the thin runs and the far blur:
@@ -176,6 +178,15 @@ impl ModelInfiller {
 
     pub fn scale(&self) -> Scale {
         self.scale
+    }
+
+    /// The same model with the temporal prior measured at `prior_scale` (ALGORITHMS.md §6.7).
+    pub fn with_prior_scale(self, prior_scale: PriorScale) -> Self {
+        Self { prior_scale, ..self }
+    }
+
+    pub fn prior_scale(&self) -> PriorScale {
+        self.prior_scale
     }
 
     /// The same model covering frames as `coverage` says (the intensity variant is always dense).
@@ -198,6 +209,7 @@ impl ModelInfiller {
         let started = Instant::now();
         let variant = self.net.config().variant;
         let factor = self.scale.factor(h);
+        let prior_factor = self.prior_scale.factor(factor);
         // The prior is measured on frame n-2; without it (first frames) the model runs without.
         let (prior, last_warped) = match variant {
             Variant::Full | Variant::NoDepth => {
@@ -208,7 +220,7 @@ impl ModelInfiller {
                         ctx.target_pose,
                         ctx.intrinsics,
                         &ctx.warped.holes,
-                        factor,
+                        prior_factor,
                     )
                 });
                 (prior, None)
@@ -218,7 +230,7 @@ impl ModelInfiller {
             }
             Variant::NoTemporalPrior => (None, None),
         };
-        let prior = prior.unwrap_or_else(|| ScaledPrior::zeros(w, h, factor));
+        let prior = prior.unwrap_or_else(|| ScaledPrior::zeros(w, h, prior_factor));
         let prior_time = started.elapsed();
         let inputs = FrameInputs {
             warped: &warped.image,

@@ -107,6 +107,7 @@ impl FrameArgs {
         Ok(FrameCase {
             coverage: self.coverage.coverage()?,
             scale: self.coverage.scale,
+            prior_scale: self.coverage.prior_scale,
             rules: self.coverage.rules(),
             frames,
             model: self.model,

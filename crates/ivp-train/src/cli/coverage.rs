@@ -2,7 +2,7 @@
 //! with which rules around the network's passes.
 
 use clap::Args;
-use ivp_core::inference::{Coverage, Scale, TileShape};
+use ivp_core::inference::{Coverage, PriorScale, Scale, TileShape};
 use ivp_core::infill::{InfillRules, FAR_BLUR, THIN_RUN};
 
 /// How a trained model covers a frame: sparse tiles by default, `--dense` for one pass over the
@@ -20,10 +20,14 @@ pub struct CoverageArgs {
     /// with the frame like --tile-core).
     #[arg(long, default_value_t = TileShape::DEFAULT.margin)]
     pub tile_margin: usize,
-    /// Shrink frames by this integer factor before the network and the temporal prior see them;
-    /// `auto` shrinks frames of 810 rows or more towards 540 rows (2 at 1080p).
+    /// Shrink frames by this integer factor before the network sees them; `auto` shrinks frames of
+    /// 810 rows or more towards 540 rows (2 at 1080p).
     #[arg(long, default_value_t = Scale::Auto)]
     pub scale: Scale,
+    /// Shrink frames by this integer factor before the temporal prior is measured on them; `auto`
+    /// shrinks them twice as much as --scale where it shrinks them (4 at 1080p), else as much.
+    #[arg(long, default_value_t = PriorScale::Auto)]
+    pub prior_scale: PriorScale,
     /// Disocclusions in runs of at most this many unknown pixels between two known ones (along a
     /// row, else a column) copy the farther of the two before the network runs (0: the network
     /// fills every disocclusion, as in the paper; ALGORITHMS.md §6.5).

@@ -62,6 +62,7 @@ pub fn run_eval(args: EvalArgs, progress: bool) -> Result<()> {
         externals: &args.external,
         coverage: args.coverage.coverage()?,
         scale: args.coverage.scale,
+        prior_scale: args.coverage.prior_scale,
     })?;
     if let Some(dir) = &args.report {
         prepare_report_dir(dir, args.force)?;

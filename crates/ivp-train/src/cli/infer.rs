@@ -34,6 +34,7 @@ impl ModelArgs {
         Ok(ModelInfiller::new("ivp", net, self.iterations)
             .with_coverage(coverage)
             .with_scale(self.coverage.scale)
+            .with_prior_scale(self.coverage.prior_scale)
             .with_rules(self.coverage.rules()))
     }
 }
