@@ -763,6 +763,19 @@ mod tests {
     }
 
     #[test]
+    fn early_iterations_keep_background_reads_along_columns() {
+        // Up from every hole of the block to row 2 (depth 3, above the threshold of 2.5): kept
+        // at the first iteration, each pixel the colour of its column's row 2.
+        let warp = block_scene_at(1.0, 4.0);
+        let holes = disocclusions(&warp);
+        let out = run(&to_nearest_known(Direction::Up), &warp, &zero_prior(&warp), 3);
+        assert_eq!(out.filled_per_iteration, [holes.len(), 0, 0]);
+        for &(u, v) in &holes {
+            assert_eq!(out.image.get(u, v), warp.image.get(u, 2), "({u}, {v})");
+        }
+    }
+
+    #[test]
     fn the_last_iteration_refuses_reads_far_in_front_of_the_background() {
         // Foreground at 1, background at 20: the threshold is 10.5, and a read of depth 1 is
         // more than FOREGROUND_DEPTH_RATIO times nearer.
@@ -1177,6 +1190,16 @@ mod tests {
             3,
             InfillRules::NONE
         )));
+        // A hole mask wrong in either side alone, the other right.
+        let (w, h) = (warp.image.width(), warp.image.height());
+        for (mw, mh) in [(w + 1, h), (w, h + 1)] {
+            let mask = HoleMask::classify(mw, mh, &vec![true; mw * mh]);
+            let result = infill_iteratively(&ok, &warp.image, &warp.depth, &mask, &prior, 3, InfillRules::NONE);
+            assert!(
+                matches!(result, Err(InfillError::SizeMismatch { what: "the hole mask", .. })),
+                "a {mw}x{mh} mask for a {w}x{h} frame: {result:?}"
+            );
+        }
         let wrong_size = FnPredictor(|_: &VectorField, _: &DepthMap, _: &[bool]| VectorField::zeros(2, 2));
         assert!(err(infill_iteratively(
             &wrong_size,
