@@ -87,7 +87,8 @@ struct SpeedArgs {
     speed_vs_error: bool,
     /// Trained models, WIDTH=FILE (those whose file is missing are skipped, with a warning).
     /// By default the committed models: width 0.25 from results/ablate/full/seed0, the others
-    /// from results/width/wW (`ivp train --synthetic --width-mult W --out results/width/wW`).
+    /// from results/width/wW (`ivp train --synthetic --width-mult W --depth-head-mult 1 --out
+    /// results/width/wW` today: they have the paper's depth head).
     #[arg(long, value_delimiter = ',', default_values_t = speed_vs_error::default_models())]
     models: Vec<String>,
     /// The 320x240 clips (generated clips stand in when the folder is missing).

@@ -531,9 +531,10 @@ pub fn parse_models(specs: &[String]) -> Result<Vec<(String, PathBuf)>> {
         .collect()
 }
 
-/// The committed model of width `width`, trained with the default recipe and seed 0: the recipe's
-/// own width is the ablation's `full` seed 0; the others are trained with `ivp train --synthetic
-/// --width-mult W --out results/width/wW`.
+/// The committed model of width `width`, trained with the recipe of its day and seed 0 (each run
+/// folder's config.toml repeats it): the recipe's own width is the ablation's `full` seed 0; the
+/// others were trained with `ivp train --synthetic --width-mult W --out results/width/wW`, with
+/// the paper's depth head (`--depth-head-mult 1` since the recipe narrowed it).
 pub fn model_file(width: &str) -> String {
     if width == "0.25" {
         "results/ablate/full/seed0/model.safetensors".to_string()

@@ -56,7 +56,9 @@ pub struct TrainConfig {
     /// `full`, `intensity`, `no-tg` or `no-depth`.
     pub variant: Variant,
     pub width_mult: f64,
-    /// Scales the depth head's widths (16, 32, 16); 1 is the paper's head, whatever `width_mult`.
+    /// Scales the depth head's widths (16, 32, 16); 1 is the paper's head. The recipe scales it
+    /// like the network (0.25: 4, 8, 4), which costs no accuracy and takes 29% off the network's
+    /// time at 1080p (results/recipe-hd/depth-head).
     pub depth_head_mult: f64,
     pub steps: u64,
     pub batch: usize,
@@ -178,7 +180,7 @@ impl Default for TrainConfig {
             data: None,
             variant: Variant::Full,
             width_mult: 0.25,
-            depth_head_mult: 1.0,
+            depth_head_mult: 0.25,
             steps: 5000,
             batch: 16,
             crop: 64,
@@ -229,7 +231,7 @@ pub struct TrainOverrides {
     #[serde(skip_serializing_if = "Option::is_none")]
     pub width_mult: Option<f64>,
     /// Width multiplier of the depth head: 1 = the paper's widths (16, 32, 16) at any
-    /// --width-mult; below 1 the network is cheaper per pixel.
+    /// --width-mult (the recipe's is 0.25); below 1 the network is cheaper per pixel.
     #[arg(long)]
     #[serde(skip_serializing_if = "Option::is_none")]
     pub depth_head_mult: Option<f64>,
@@ -1306,6 +1308,7 @@ mod tests {
         paper.validate().unwrap();
         let expected = TrainConfig {
             width_mult: 1.0,
+            depth_head_mult: 1.0,
             batch: 4,
             crop: 256,
             lr: 1e-4,

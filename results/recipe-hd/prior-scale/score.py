@@ -8,8 +8,6 @@ import os
 import statistics
 import sys
 
-out = sys.argv[1] if len(sys.argv) > 1 else os.path.dirname(__file__)
-
 
 def scores(path):
     d = json.load(open(path))
@@ -28,24 +26,29 @@ def scores(path):
     return ivp, fill, clips, worst, d["methods"]["ivp"]["ms_per_frame"]
 
 
-for data, name in [("hd", "blender-dev-hd (9 frames)"), ("gen", "4 generated 1080p clips (12 frames)"),
-                   ("dev12", "the 12 clips at 320x240 (36 frames)")]:
-    print(f"\n{name}\n")
-    print("| --prior-scale | " + " | ".join(f"seed {s}" for s in range(5)) +
-          " | mean ± sd | worst / best | worst frame x fill | ms/frame (`ivp eval`) |")
-    print("|---" * 10 + "|")
-    for p in ["auto", "2"]:
-        rows = [scores(os.path.join(out, f"{data}-s{s}-{p}.json")) for s in range(5)]
-        ds = [r[0] for r in rows]
-        cells = [f"{r[0]:.1f} ({r[0] / r[1]:.3f})" for r in rows]
-        ms = [r[4] for r in rows]
-        print(f"| {p} | " + " | ".join(cells) + f" | {statistics.mean(ds):.1f} ± {statistics.stdev(ds):.1f} | "
-              f"{max(ds) / min(ds):.3f} | {min(r[3] for r in rows):.2f}-{max(r[3] for r in rows):.2f} | "
-              f"{min(ms):.0f}-{max(ms):.0f} |")
-    if data != "dev12":
-        print("\nby clip, x fill, seeds 0-4 (auto against 2):\n")
+def main(out):
+    for data, name in [("hd", "blender-dev-hd (9 frames)"), ("gen", "4 generated 1080p clips (12 frames)"),
+                       ("dev12", "the 12 clips at 320x240 (36 frames)")]:
+        print(f"\n{name}\n")
+        print("| --prior-scale | " + " | ".join(f"seed {s}" for s in range(5)) +
+              " | mean ± sd | worst / best | worst frame x fill | ms/frame (`ivp eval`) |")
+        print("|---" * 10 + "|")
         for p in ["auto", "2"]:
             rows = [scores(os.path.join(out, f"{data}-s{s}-{p}.json")) for s in range(5)]
-            n = len(rows[0][2])
-            spans = [f"{min(r[2][c] for r in rows):.3f}-{max(r[2][c] for r in rows):.3f}" for c in range(n)]
-            print(f"- {p}: " + " / ".join(spans))
+            ds = [r[0] for r in rows]
+            cells = [f"{r[0]:.1f} ({r[0] / r[1]:.3f})" for r in rows]
+            ms = [r[4] for r in rows]
+            print(f"| {p} | " + " | ".join(cells) + f" | {statistics.mean(ds):.1f} ± {statistics.stdev(ds):.1f} | "
+                  f"{max(ds) / min(ds):.3f} | {min(r[3] for r in rows):.2f}-{max(r[3] for r in rows):.2f} | "
+                  f"{min(ms):.0f}-{max(ms):.0f} |")
+        if data != "dev12":
+            print("\nby clip, x fill, seeds 0-4 (auto against 2):\n")
+            for p in ["auto", "2"]:
+                rows = [scores(os.path.join(out, f"{data}-s{s}-{p}.json")) for s in range(5)]
+                n = len(rows[0][2])
+                spans = [f"{min(r[2][c] for r in rows):.3f}-{max(r[2][c] for r in rows):.3f}" for c in range(n)]
+                print(f"- {p}: " + " / ".join(spans))
+
+
+if __name__ == "__main__":
+    main(sys.argv[1] if len(sys.argv) > 1 else os.path.dirname(__file__))

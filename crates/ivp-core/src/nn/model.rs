@@ -15,8 +15,8 @@
 //! | d6 .. d8 | nearest x2 of the last + skip e4, e3, e2 | 256 m, 128 m, 64 m | 3 | 1 |
 //! | d9 | nearest x2 of d8 + skip e1 | 2 (vectors, no ReLU) | 3 | 1 |
 //!
-//! `m` is the width multiplier and `h` the depth head's (1, the paper's, unless a model asks
-//! otherwise: at `m` = 0.25 the fixed head is 39% of the multiply-adds).
+//! `m` is the width multiplier and `h` the depth head's (1 in the paper; the recipe trains
+//! `m` = `h` = 0.25, since at `m` = 0.25 the paper's head is 39% of the multiply-adds).
 //!
 //! The intensity-prediction ablation keeps this shape but reads `f_n`, `f^w_n`, the depth head's
 //! output and `f^w_{n+1}` (10 channels) and ends in 3 channels through a sigmoid: RGB for the holes.

@@ -10,6 +10,7 @@ use crate::bench::{bench_infer, bench_train, InferCase, TrainCase};
 use crate::bench_frame::{bench_clip, bench_frame, FrameCase, FrameSource};
 use crate::checkpoint::check_depth_head_mult;
 use crate::cli::coverage::CoverageArgs;
+use crate::train::TrainConfig;
 
 #[derive(Subcommand)]
 pub enum BenchCommand {
@@ -73,11 +74,11 @@ pub struct FrameArgs {
     /// A trained model file; without it, an untrained network of --width-mult.
     #[arg(long, conflicts_with = "width_mult")]
     pub model: Option<PathBuf>,
-    /// Width multiplier of the untrained network (the recipe's is 0.25).
-    #[arg(long, default_value_t = 0.25)]
+    /// Width multiplier of the untrained network (default: the recipe's).
+    #[arg(long, default_value_t = TrainConfig::default().width_mult)]
     pub width_mult: f64,
-    /// Width multiplier of the untrained network's depth head (1 = the paper's).
-    #[arg(long, default_value_t = 1.0, conflicts_with = "model")]
+    /// Width multiplier of the untrained network's depth head (1 = the paper's; default: the recipe's).
+    #[arg(long, default_value_t = TrainConfig::default().depth_head_mult, conflicts_with = "model")]
     pub depth_head_mult: f64,
     /// Iterations of the test-time infilling (ALGORITHMS.md §6.5).
     #[arg(long, default_value_t = ivp_core::infill::DEFAULT_ITERATIONS)]
