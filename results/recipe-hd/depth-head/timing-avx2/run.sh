@@ -1,9 +1,9 @@
 #!/usr/bin/env bash
 # The 9 frames of blender-dev-hd timed end to end by `ivp bench frame` (5 runs a frame, the
-# default path), two models in turn, the order swapped every round; then pair.py prints each
+# default path), two models in turn, the order swapped every round; then results/recipe-hd/timing_pairs.py prints each
 # stage's paired difference over frames and rounds:
 #   results/recipe-hd/depth-head/timing-avx2/run.sh OUT ROUNDS
-#   python3 results/recipe-hd/depth-head/timing-avx2/pair.py OUT dh025 paper
+#   python3 results/recipe-hd/timing_pairs.py OUT dh025 paper
 # dh025: the recipe with the narrow depth head (depth-head/dh025/seed0); paper: the recipe's
 # (last9/seed0), the paper's depth head.
 set -euo pipefail

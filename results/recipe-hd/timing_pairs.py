@@ -1,6 +1,8 @@
-"""Paired differences A - B by stage over the frames and rounds of run.sh (files rR-NAME-cC.json):
-the medians of A and B, the median difference with its quartiles in ms, and the ratio's.
-Usage: pair.py OUT A B"""
+"""Paired differences A - B by stage over the frames and rounds of two settings or models timed in
+alternated rounds by `ivp bench frame` (files rR-NAME-cC.json, as the timing-avx2/run.sh scripts
+write them): the medians of A and B, the median difference with its quartiles in ms, the ratio's,
+and each clip's median frame.
+Usage: results/recipe-hd/timing_pairs.py OUT A B"""
 import collections
 import glob
 import json
@@ -20,7 +22,8 @@ print(f"| stage | {a} (ms) | {b} (ms) | paired difference (IQR) | ratio (IQR) |"
 print("|---|---|---|---|---|")
 for stage in ["total", "warp", "prior", "network", "infill"]:
     d = [v[a][stage] - v[b][stage] for v in pairs]
-    ratio = [v[a][stage] / v[b][stage] for v in pairs]
+    # Frames where the stage did not run in B (no network pass: all holes thin) have no ratio.
+    ratio = [v[a][stage] / v[b][stage] for v in pairs if v[b][stage] > 0]
     q, qr = statistics.quantiles(d, n=4), statistics.quantiles(ratio, n=4)
     ma = statistics.median(v[a][stage] for v in pairs)
     mb = statistics.median(v[b][stage] for v in pairs)
