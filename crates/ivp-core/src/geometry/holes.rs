@@ -261,6 +261,14 @@ mod tests {
     }
 
     #[test]
+    fn the_holes_image_codes_each_class_by_its_grey() {
+        let classes = [PixelClass::Known, PixelClass::Disocclusion, PixelClass::NewRegion, PixelClass::Known];
+        let mask = HoleMask::from_classes(2, 2, classes.to_vec());
+        assert_eq!(mask.to_gray8(), [0, 255, 128, 0]);
+        assert!(HoleMask::from_classes(0, 3, Vec::new()).to_gray8().is_empty());
+    }
+
+    #[test]
     fn all_hole_frame_is_all_new_region() {
         let m = HoleMask::classify(4, 4, &[false; 16]);
         assert_eq!(m.count(PixelClass::NewRegion), 16);
