@@ -3,12 +3,14 @@
 # three blender-dev-hd clips (targets 3, 4, 5: 9 frames), by stage, with the hole fraction, the
 # pixels the tiles read and each frame's D-MSE beside fill's; then the generated 1080p frame of
 # `ivp bench frame` for comparison. Run from the repository's root on a quiet machine:
-#   results/real-1080p/run.sh [MODEL]      (HD=DIR for the clips, default ../shared/data/blender-dev-hd)
+#   results/real-1080p/run.sh [MODEL]      (HD=DIR for the clips, default ../shared/data/blender-dev-hd;
+#                                          OUT=DIR for the JSON, default results/real-1080p)
 set -euo pipefail
 model=${1:-results/ablate/full/seed0/model.safetensors}
 ivp=${IVP:-target/release/ivp}
 hd=${HD:-../shared/data/blender-dev-hd}
-out=results/real-1080p
+out=${OUT:-results/real-1080p}
+mkdir -p "$out"
 for clip in "$hd"/clip_*; do
   "$ivp" -q bench frame --data "$clip" --targets 3,4,5 --model "$model" --runs 5 > "$out/$(basename "$clip").json"
 done

@@ -79,6 +79,12 @@ fn a_resumed_run_equals_an_uninterrupted_one() {
     let first = train(&config, &parts, &RunOptions { stop_at: Some(3), ..quiet() }).unwrap();
     assert!(first.stopped_early && first.model_path.is_none());
     assert_eq!(first.steps_done, 3);
+    // Nor may a second process train in the folder while one does.
+    let held = std::fs::File::open(parts.join(".lock")).unwrap();
+    held.lock().unwrap();
+    let err = train(&config, &parts, &RunOptions { resume: true, ..quiet() }).unwrap_err();
+    assert!(format!("{err:#}").contains("another process is training"), "{err:#}");
+    held.unlock().unwrap();
     // Starting again without --resume must not overwrite the run.
     let err = train(&config, &parts, &quiet()).unwrap_err();
     assert!(format!("{err:#}").contains("--resume"), "{err:#}");
@@ -128,6 +134,52 @@ fn a_diverging_run_stops_with_the_step_and_keeps_the_last_good_checkpoint() {
         assert!(values.iter().all(|v| v.is_finite()));
     }
     assert!(!dir.path().join("model.safetensors").exists());
+}
+
+#[test]
+fn a_run_whose_validation_leaves_its_lowest_rolls_back_to_its_last_good_checkpoint() {
+    let dir = tempfile::tempdir().unwrap();
+    let [source, wild, unguarded, replay] = ["source", "wild", "unguarded", "replay"].map(|n| dir.path().join(n));
+    // Four validation clips: one alone has only thin-run holes, which the network never fills.
+    let config = TrainConfig { validate_every: 2, checkpoint_every: 2, validation_clips: 4, ..tiny(8) };
+    train(&config, &source, &quiet()).unwrap();
+    let checkpoint = |run: &Path, step: u64| run.join(format!("checkpoints/step_{step:08}.safetensors"));
+    // From step 4 on, a learning rate that throws the weights out of their basin (Adam moves each
+    // by about the rate a step): step 6's validation is more than 2% above the lowest of steps 2
+    // and 4, which the branch recalls from the source's log.
+    let wild_config = TrainConfig { lr: 0.5, warmup_steps: 0, max_grad_norm: 0.0, ..config.clone() };
+    let branch = |config: &TrainConfig, from: &Path, out: &Path| {
+        train(config, out, &RunOptions { branch_from: Some(from.to_path_buf()), ..quiet() }).unwrap()
+    };
+    branch(&wild_config, &checkpoint(&source, 4), &wild);
+    let validation_at = |run: &Path, step: usize| -> f64 {
+        logged_losses(run)[step / 2 - 1].split(',').nth(6).unwrap().parse().unwrap()
+    };
+    let lowest = validation_at(&source, 2).min(validation_at(&source, 4));
+    assert!(validation_at(&wild, 6) > 1.02 * lowest, "the failed validation stays in the log");
+    // A checkpoint's parameters, by name, as `parameters` gives a model file's.
+    let checkpointed = |path: &Path| {
+        let mut p: Vec<(String, Vec<f32>)> = load_checkpoint(path)
+            .unwrap()
+            .params
+            .into_iter()
+            .map(|(n, t)| (n, t.flatten_all().unwrap().to_vec1().unwrap()))
+            .collect();
+        p.sort_by(|a, b| a.0.cmp(&b.0));
+        p
+    };
+    assert!(checkpointed(&checkpoint(&wild, 6)) == checkpointed(&checkpoint(&source, 4)), "step 6 holds step 4's");
+    let restored = load_checkpoint(&checkpoint(&wild, 6)).unwrap();
+    assert_eq!((restored.step, restored.adam_steps), (6, 4), "and Adam's state of step 4");
+
+    // Without the guard the run keeps what step 6 made of it.
+    branch(&TrainConfig { rollback_above: 0.0, ..wild_config.clone() }, &checkpoint(&source, 4), &unguarded);
+    assert!(checkpointed(&checkpoint(&unguarded, 6)) != checkpointed(&checkpoint(&source, 4)));
+    // With it, the run went on from step 4's state with the batches of steps 6 and 7, as a run
+    // started from its rolled-back checkpoint does.
+    branch(&TrainConfig { rollback_above: 0.0, ..wild_config }, &checkpoint(&wild, 6), &replay);
+    assert!(parameters(&replay.join("model.safetensors")) == parameters(&wild.join("model.safetensors")));
+    assert!(parameters(&wild.join("model.safetensors")) != parameters(&unguarded.join("model.safetensors")));
 }
 
 #[test]
