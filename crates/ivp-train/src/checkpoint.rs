@@ -104,6 +104,15 @@ pub struct Checkpoint {
     pub adam_steps: u64,
 }
 
+impl Checkpoint {
+    /// Puts its parameters into `varmap` and its moments into `optimizer`, as a run resumes,
+    /// branches or rolls back from it; `path`, the file it was read from, names it in errors.
+    pub fn restore_into(&self, path: &Path, varmap: &VarMap, optimizer: &mut Adam) -> Result<(), CheckpointError> {
+        restore_parameters(path, varmap, &self.params)?;
+        optimizer.load_state(&self.adam, self.adam_steps).map_err(|e| invalid(path, format!("Adam's state: {e}")))
+    }
+}
+
 /// Writes the network's parameters and configuration as a model file; `step`, the training step
 /// the weights are from, goes to the metadata (`ivp.step`) when known.
 pub fn save_model(

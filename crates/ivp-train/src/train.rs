@@ -31,7 +31,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::checkpoint::{
     check_depth_head_mult, check_width_mult, export_model, load_checkpoint, load_model, mean_of, network_from,
-    restore_parameters, save_checkpoint, Checkpoint,
+    save_checkpoint, Checkpoint,
 };
 use crate::distributed::{
     any_rank, batch_part, broadcast_from_root, f32_bytes, share_training_state, sum_gradients, sum_over_ranks,
@@ -878,9 +878,7 @@ fn roll_back(
     let path = checkpoint_path(checkpoints, step);
     let restored = group.rank() == 0 && path.is_file();
     if restored {
-        let ckpt = load_checkpoint(&path)?;
-        restore_parameters(&path, varmap, &ckpt.params)?;
-        optimizer.load_state(&ckpt.adam, ckpt.adam_steps)?;
+        load_checkpoint(&path)?.restore_into(&path, varmap, optimizer)?;
     }
     share_training_state(group, optimizer, step)?;
     Ok(restored)
@@ -1052,8 +1050,7 @@ fn open_run_folder(
                  checkpoint_every and keep_checkpoints may change):\n{saved:#?}",
                 path.display()
             );
-            restore_parameters(&path, varmap, &ckpt.params)?;
-            optimizer.load_state(&ckpt.adam, ckpt.adam_steps)?;
+            ckpt.restore_into(&path, varmap, optimizer)?;
             run.first_step = ckpt.step;
             run.log = MetricsLog::resume(run_dir.join("metrics.csv"), ckpt.step)?;
             tracing::info!("resuming {} at step {}", run_dir.display(), ckpt.step);
@@ -1103,8 +1100,7 @@ fn branch_from(
         source.display(),
         ckpt.model
     );
-    restore_parameters(source, varmap, &ckpt.params)?;
-    optimizer.load_state(&ckpt.adam, ckpt.adam_steps)?;
+    ckpt.restore_into(source, varmap, optimizer)?;
     tracing::info!("{}", describe_branch(config, source, &ckpt)?);
 
     let checkpoints = run_dir.join("checkpoints");
